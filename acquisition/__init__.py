@@ -1,0 +1,1 @@
+"""gonio.acquisition (see DESIGN.md); filled in by its own issue."""

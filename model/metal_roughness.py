@@ -1,0 +1,64 @@
+"""The metal-roughness material of glTF 2.0 (Appendix B of the specification) and game engines.
+
+    alpha = roughness^2
+    specular = V D with D = GGX(alpha), V = G / (4 cos_i cos_o), G exact height-correlated Smith
+    dielectric = (1 - F(0.04)) base_color / pi + F(0.04) specular        (fresnel_mix, ior 1.5)
+    metal      = F(base_color) specular                                   (conductor_fresnel)
+    f = (1 - metallic) dielectric + metallic metal
+
+with F(F0) Schlick's approximation at cos_d = wi . h.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from model import fresnel, microfacet
+from model._params import Channel, channel, scalar
+from model.base import Array, Model, Pair
+
+#: glTF's dielectric F0 (ior 1.5).
+F0_DIELECTRIC = 0.04
+
+
+@dataclass(frozen=True)
+class MetalRoughness(Model):
+    """glTF metal-roughness.
+
+    Parameters:
+        base_color: [0, 1], scalar or per channel; the diffuse albedo of dielectrics, F0 of metals.
+        metallic: [0, 1]; glTF allows fractional values as a blend.
+        roughness: perceptual roughness in (0, 1]; alpha = roughness^2, clamped to >= 1e-4.
+    """
+
+    base_color: Channel = 0.5
+    metallic: float = 0.0
+    roughness: float = 0.5
+
+    def __post_init__(self) -> None:
+        name = type(self).__name__
+        object.__setattr__(self, "base_color", channel(name, "base_color", self.base_color, 0.0, 1.0))
+        object.__setattr__(self, "metallic", scalar(name, "metallic", self.metallic, 0.0, 1.0))
+        object.__setattr__(self, "roughness", scalar(name, "roughness", self.roughness, 0.0, 1.0, lo_open=True))
+
+    @property
+    def alpha(self) -> float:
+        """Microfacet alpha = roughness^2."""
+        return float(self.roughness) ** 2
+
+    def _eval(self, p: Pair) -> Array:
+        base = p.param(self.base_color)
+        d = microfacet.ggx_d(p.cos_h, self.alpha)
+        g = microfacet.masking("smith_correlated", p.cos_i, p.cos_o, p.cos_h, p.cos_d, self.alpha)
+        spec = d * g / np.maximum(4.0 * p.cos_i * p.cos_o, p.tiny)
+        f_d = fresnel.schlick(p.cos_d, F0_DIELECTRIC)
+        dielectric = (1.0 - f_d) * base / np.pi + f_d * spec
+        metal = fresnel.schlick(p.cos_d, base) * spec
+        m = float(self.metallic)
+        return (1.0 - m) * dielectric + m * metal
+
+    def lobe(self) -> tuple[str, float]:
+        """The microfacet lobe (distribution, alpha) for importance sampling."""
+        return "ggx", self.alpha

@@ -1,0 +1,1 @@
+"""gonio.rig (see DESIGN.md); filled in by its own issue."""

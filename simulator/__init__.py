@@ -1,0 +1,1 @@
+"""gonio.simulator (see DESIGN.md); filled in by its own issue."""
