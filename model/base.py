@@ -54,10 +54,14 @@ class Pair:
         return tiny(self.dtype)
 
     @cached_property
+    def _sum_norm(self) -> tuple[Array, Array]:
+        s = self.wi + self.wo
+        return s, np.sqrt(np.sum(s * s, axis=-1, keepdims=True))
+
+    @cached_property
     def h(self) -> Array:
         """Unit half vector; for upper-hemisphere pairs wi + wo never vanishes, so this is exact."""
-        s = self.wi + self.wo
-        n = np.sqrt(np.sum(s * s, axis=-1, keepdims=True))
+        s, n = self._sum_norm
         return s / np.maximum(n, self.tiny)
 
     @cached_property
@@ -67,8 +71,12 @@ class Pair:
 
     @cached_property
     def cos_d(self) -> Array:
-        """Cosine between wi and the half vector (equal to wo . h), (..., 1)."""
-        return np.clip(np.sum(self.wi * self.h, axis=-1, keepdims=True), 0.0, 1.0)
+        """Cosine between wi (or wo) and the half vector, (..., 1).
+
+        For unit vectors wi . h = |wi + wo| / 2 exactly; that form is symmetric in wi and wo, where
+        wi . h would amplify rounding in |wi| by 1 / |wi + wo| for nearly opposite directions.
+        """
+        return np.clip(0.5 * self._sum_norm[1], 0.0, 1.0)
 
     def param(self, value: Channel) -> Array:
         """A parameter as a (C,) array in the working dtype, to broadcast against (..., 1)."""

@@ -50,7 +50,8 @@ def dielectric(cos_i: npt.ArrayLike, eta: npt.ArrayLike) -> Array:
     rs = (c - e * cos_t) / np.maximum(c + e * cos_t, tiny)
     rp = (e * c - cos_t) / np.maximum(e * c + cos_t, tiny)
     f = 0.5 * (rs * rs + rp * rp)
-    return np.where(sin2_t >= 1.0, 1.0, np.minimum(f, 1.0)).astype(c.dtype)
+    # Strictly beyond the critical angle only: at grazing with eta = 1 (no interface) F is 0, not 1.
+    return np.where(sin2_t > 1.0, 1.0, np.minimum(f, 1.0)).astype(c.dtype)
 
 
 def conductor(cos_i: npt.ArrayLike, eta: npt.ArrayLike, k: npt.ArrayLike) -> Array:

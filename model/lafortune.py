@@ -21,7 +21,8 @@ from model.base import Array, Model, Pair
 @dataclass(frozen=True)
 class LafortuneLobe:
     """One generalised cosine lobe: coefficients c_x, c_y, c_z (1/sr^(1/n), scalar or per channel)
-    and exponent n in [0, 1e6]."""
+    and exponent n in [0, 1e6], with the lobe's peak max|C|^n at most 1e30 1/sr so it stays finite
+    in float32 (a larger peak is no physical reflectance)."""
 
     c_x: Channel = -1.0
     c_y: Channel = -1.0
@@ -32,6 +33,13 @@ class LafortuneLobe:
         for name in ("c_x", "c_y", "c_z"):
             object.__setattr__(self, name, channel("LafortuneLobe", name, getattr(self, name), -1e3, 1e3))
         object.__setattr__(self, "n", scalar("LafortuneLobe", "n", self.n, 0.0, 1e6))
+        c_max = float(np.max(np.abs(np.concatenate([np.atleast_1d(self.c_x), np.atleast_1d(self.c_y),
+                                                     np.atleast_1d(self.c_z)]))))
+        if c_max > 1.0 and self.n * np.log10(c_max) > 30.0:
+            raise ParameterError(
+                f"LafortuneLobe: peak max|C|^n = {c_max:g}^{self.n:g} exceeds 1e30 1/sr; "
+                "reduce the coefficients or the exponent n"
+            )
 
 
 @dataclass(frozen=True)

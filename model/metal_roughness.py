@@ -7,6 +7,11 @@
     f = (1 - metallic) dielectric + metallic metal
 
 with F(F0) Schlick's approximation at cos_d = wi . h.
+
+Energy: the specification's fresnel_mix weights the diffuse base by (1 - F) per direction pair while
+the specular lobe reflects F, which double counts near grazing. Measured with 200k importance samples
+at base_color 1, metallic 0: albedo 1.35 at theta_i = 80 deg and 1.71 at 89 deg for roughness 0.1,
+1.15 at 89 deg for roughness 0.5. Pure metals (metallic = 1) conserve energy.
 """
 
 from __future__ import annotations
@@ -36,6 +41,12 @@ class MetalRoughness(Model):
     base_color: Channel = 0.5
     metallic: float = 0.0
     roughness: float = 0.5
+
+    exemption = "glTF's fresnel_mix double counts energy near grazing for dielectrics (albedo up to 1.7)"
+
+    def conserves_energy(self) -> bool:
+        """Only pure metals (metallic = 1) promise albedo <= 1; see the module docstring."""
+        return float(self.metallic) == 1.0
 
     def __post_init__(self) -> None:
         name = type(self).__name__

@@ -97,9 +97,10 @@ def beckmann_lambda(cos_v: npt.ArrayLike, alpha: npt.ArrayLike) -> Array:
     c = np.asarray(cos_v)
     al = clamp_alpha(alpha).astype(c.dtype)
     s = np.sqrt(np.maximum(0.0, 1.0 - c * c))
-    a = c / np.maximum(al * s, np.finfo(c.dtype).tiny)
-    # -erfc(a)/2 is (erf(a) - 1)/2 without cancellation; both terms underflow to 0 as a -> inf,
-    # which is the exact limit (no masking at normal incidence).
+    # Beyond a = 40 both terms are below 1e-690 (Lambda is 0, no masking); below 1e-150 Lambda is
+    # over 1e149 (G1 is 0 at grazing). Clipping keeps those limits without overflow warnings.
+    a = np.clip(c / np.maximum(al * s, np.finfo(c.dtype).tiny), 1e-150 if c.dtype == np.float64 else 1e-30, 40.0)
+    # -erfc(a)/2 is (erf(a) - 1)/2 without cancellation.
     lam = -0.5 * erfc(a) + np.exp(-a * a) / (2.0 * a * math.sqrt(math.pi))
     return np.maximum(lam, 0.0).astype(c.dtype)
 

@@ -5,6 +5,10 @@
     a = max(theta_i, theta_o),  b = min(theta_i, theta_o),
 
 with s = sigma, the standard deviation of the facet slope angle in radians. sigma = 0 is Lambert.
+
+Energy: the qualitative model is a fit, not an exact integral, and near grazing its directional albedo
+exceeds rho_d by up to 1.52 % (measured: 1.0152 at rho_d = 1, sigma = 0.2, theta_i = 89.99 deg, with
+400k-point quadrature). It therefore promises albedo <= 1 only for rho_d <= 0.985.
 """
 
 from __future__ import annotations
@@ -33,6 +37,15 @@ class OrenNayar(Model):
         name = type(self).__name__
         object.__setattr__(self, "rho_d", channel(name, "rho_d", self.rho_d, 0.0, 1.0))
         object.__setattr__(self, "sigma", scalar(name, "sigma", self.sigma, 0.0, np.pi / 2))
+
+    exemption = "the qualitative fit overshoots rho_d by up to 1.52 % near grazing (sigma ~ 0.2)"
+
+    #: Largest rho_d for which the overshoot above still leaves the albedo <= 1.
+    RHO_D_MAX_CONSERVING = 0.985
+
+    def conserves_energy(self) -> bool:
+        """Albedo <= 1 is promised for rho_d <= 0.985 (see the module docstring)."""
+        return bool(np.all(np.asarray(self.rho_d) <= self.RHO_D_MAX_CONSERVING))
 
     def _eval(self, p: Pair) -> Array:
         s2 = float(self.sigma) ** 2
