@@ -41,8 +41,8 @@ def channel(
     flat = arr.reshape(-1)
     for v in flat:
         bad = (
-            not math.isfinite(v)
-            and not (v == math.inf and hi == math.inf and not hi_open)
+            (not math.isfinite(v)
+            and not (v == math.inf and hi == math.inf and not hi_open))
             or (v < lo or (lo_open and v == lo))
             or (v > hi or (hi_open and v == hi))
         )

@@ -97,6 +97,20 @@ class Model(abc.ABC):
     #: Why a model is exempt from one of the properties above (shown by the checks).
     exemption: ClassVar[str] = ""
 
+    def __init_subclass__(cls, **kwargs: object) -> None:
+        super().__init_subclass__(**kwargs)
+        own = cls.__dict__.get("__post_init__")
+        if own is None:
+            return
+
+        def post_init(self: Model) -> None:
+            own(self)
+            # Per-channel parameters of different lengths are caught here, at construction,
+            # rather than as a broadcasting error at the first eval.
+            channels_of(*self._channel_params())
+
+        cls.__post_init__ = post_init  # type: ignore[attr-defined]
+
     def _channel_params(self) -> tuple[Channel, ...]:
         return tuple(
             getattr(self, f.name)
@@ -125,7 +139,7 @@ class Model(abc.ABC):
         f = np.where(p.valid, f, 0.0).astype(p.dtype, copy=False)
         if self.channels is None:
             return f[..., 0]
-        return np.broadcast_to(f, p.cos_i.shape[:-1] + (self.channels,)).copy()
+        return np.broadcast_to(f, (*p.cos_i.shape[:-1], self.channels)).copy()
 
     def with_params(self, **changes: object) -> Model:
         """A copy with some parameters changed (validated again)."""

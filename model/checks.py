@@ -69,7 +69,7 @@ class EnergyReport:
     def passed(self) -> bool:
         """True when no albedo exceeds 1 by more than the tolerance plus three standard errors."""
         margin = self.tolerance + 3.0 * np.max(self.stderr, initial=0.0)
-        return self.max_albedo <= 1.0 + margin
+        return bool(self.max_albedo <= 1.0 + margin)
 
 
 def check_energy(

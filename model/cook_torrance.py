@@ -123,6 +123,7 @@ class CookTorrance(Model):
         spec = self.specular(p) * self.fresnel_term(p, p.cos_d)
         return p.param(self.rho_d) / np.pi + spec
 
-    def lobe(self) -> tuple[str, float]:
-        """The microfacet lobe (distribution, alpha) for importance sampling."""
-        return self.distribution, float(self.alpha)
+    def lobe(self) -> tuple[str, float, float]:
+        """The microfacet lobe (distribution, alpha, share of samples) for importance sampling."""
+        diffuse = bool(np.any(np.asarray(self.rho_d) > 0))
+        return self.distribution, float(self.alpha), 0.5 if diffuse else 0.9

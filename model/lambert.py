@@ -25,4 +25,4 @@ class Lambert(Model):
         object.__setattr__(self, "rho_d", channel("Lambert", "rho_d", self.rho_d, 0.0, 1.0))
 
     def _eval(self, p: Pair) -> Array:
-        return np.broadcast_to(p.param(self.rho_d) / np.pi, p.cos_i.shape[:-1] + (len(p.param(self.rho_d)),))
+        return np.broadcast_to(p.param(self.rho_d) / np.pi, (*p.cos_i.shape[:-1], len(p.param(self.rho_d))))

@@ -70,6 +70,6 @@ class MetalRoughness(Model):
         m = float(self.metallic)
         return (1.0 - m) * dielectric + m * metal
 
-    def lobe(self) -> tuple[str, float]:
-        """The microfacet lobe (distribution, alpha) for importance sampling."""
-        return "ggx", self.alpha
+    def lobe(self) -> tuple[str, float, float]:
+        """The microfacet lobe (distribution, alpha, share of samples) for importance sampling."""
+        return "ggx", self.alpha, 0.5 + 0.4 * float(self.metallic)

@@ -63,6 +63,6 @@ class MetalnessMix(Model):
         spec = d * g * f / np.maximum(4.0 * p.cos_i * p.cos_o, p.tiny)
         return (1.0 - f) * (1.0 - k) * base / np.pi + spec
 
-    def lobe(self) -> tuple[str, float]:
-        """The microfacet lobe (distribution, alpha) for importance sampling."""
-        return "ggx", self.alpha
+    def lobe(self) -> tuple[str, float, float]:
+        """The microfacet lobe (distribution, alpha, share of samples) for importance sampling."""
+        return "ggx", self.alpha, 0.5 + 0.4 * float(self.metalness)
