@@ -26,12 +26,13 @@ class Material:
     brdf: BRDF
 
 
-#: Aluminium's complex index at roughly 650/550/450 nm (Rakic 1995), as RGB channels.
-ALUMINIUM = {"eta": (1.657, 0.880, 0.521), "k": (9.224, 6.270, 4.837)}
+#: Aluminium's complex index eta + i k at roughly 650/550/450 nm (Rakic 1995), as RGB channels.
+ALUMINIUM_ETA = (1.657, 0.880, 0.521)
+ALUMINIUM_K = (9.224, 6.270, 4.837)
 
 DEMO_MATERIALS: tuple[Material, ...] = (
     Material("matte (Oren-Nayar, sigma 0.3 rad)", m.OrenNayar((0.6, 0.5, 0.4), 0.3)),
-    Material("rough aluminium (GGX, alpha 0.3)", m.CookTorrance(alpha=0.3, **ALUMINIUM)),
+    Material("rough aluminium (GGX, alpha 0.3)", m.CookTorrance(alpha=0.3, eta=ALUMINIUM_ETA, k=ALUMINIUM_K)),
     Material(
         "glossy plastic (GGX, eta 1.5, alpha 0.08)",
         m.CookTorrance(alpha=0.08, fresnel="dielectric", eta=1.5, rho_d=(0.5, 0.1, 0.1)),
