@@ -19,9 +19,14 @@ import numpy as np
 import numpy.typing as npt
 
 from model._params import Channel, as_column, channels_of
-from model.geometry import float_dtype, tiny
+from model.geometry import float_dtype
 
 Array = npt.NDArray[np.floating]
+
+#: Floor for divisors such as cos_i cos_o. Products below it occur only within ~1e-15 rad of the
+#: horizon; there the value is capped (at most ~1e38 even for alpha = 1e-4 and no masking) instead
+#: of overflowing, in float32 as in float64. The dtype's own tiny (2e-308) would overflow 1/x.
+DIVISOR_FLOOR = 1e-30
 
 
 @runtime_checkable
@@ -50,8 +55,8 @@ class Pair:
 
     @property
     def tiny(self) -> float:
-        """Smallest positive normal number of the working dtype, a safe divisor."""
-        return tiny(self.dtype)
+        """The divisor floor (see DIVISOR_FLOOR), well inside the working dtype's range."""
+        return DIVISOR_FLOOR
 
     @cached_property
     def _sum_norm(self) -> tuple[Array, Array]:

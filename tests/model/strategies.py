@@ -35,10 +35,11 @@ def blinn_phong(draw):
 @st.composite
 def cook_torrance(draw):
     fres = draw(st.sampled_from(["conductor", "dielectric", "schlick"]))
+    dist = draw(st.sampled_from(["ggx", "beckmann", "blinn_phong"]))
     eta = draw(st.floats(0.01, 10.0) | st.tuples(*[st.floats(0.01, 10.0)] * 3))
     return m.CookTorrance(
-        alpha=draw(alpha),
-        distribution=draw(st.sampled_from(["ggx", "beckmann", "blinn_phong"])),
+        alpha=draw(st.floats(1e-6, 1.0) if dist == "blinn_phong" else alpha),
+        distribution=dist,
         masking=draw(st.sampled_from(["smith", "smith_correlated", "smith_schlick", "v_groove", "none"])),
         fresnel=fres,
         eta=eta,
@@ -84,7 +85,7 @@ models = st.one_of(
 )
 
 # Cosines from exactly 0 through 1e-12 to 1, as DESIGN.md's extremes require.
-cosine = st.sampled_from([0.0, 1e-12, 1e-7, 1e-3, 1.0]) | st.floats(0.0, 1.0)
+cosine = st.sampled_from([0.0, 5e-324, 1e-300, 1e-30, 1e-12, 1e-7, 1e-3, 1.0]) | st.floats(0.0, 1.0)
 
 
 @st.composite
