@@ -76,12 +76,20 @@ def check_energy(
     model: BRDF,
     theta_i: npt.ArrayLike | None = None,
     n: int = 65_536,
-    method: str = "quadrature",
+    method: str = "auto",
     rng: np.random.Generator | int | None = 0,
     tolerance: float = 1e-3,
 ) -> EnergyReport:
-    """Directional albedo at several incident zenith angles (radians; default 0 to 89 degrees)."""
+    """Directional albedo at several incident zenith angles (radians; default 0 to 89 degrees).
+
+    method "auto" uses importance-sampled Monte Carlo for models that declare a microfacet lobe and
+    quadrature otherwise: a (cos theta, phi) grid cannot resolve a narrow lobe near grazing (measured:
+    albedo 11 instead of 0.90 at alpha 0.05, theta_i 85 deg, n = 256; still 0.14 off at n = 65536),
+    and would report violations that are not there.
+    """
     th = np.radians(np.linspace(0.0, 89.0, 12)) if theta_i is None else np.asarray(theta_i, dtype=float)
+    if method == "auto":
+        method = "mc" if callable(getattr(model, "lobe", None)) else "quadrature"
     g = np.random.default_rng(rng)
     values, errors = [], []
     for t in th:

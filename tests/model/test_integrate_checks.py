@@ -54,3 +54,13 @@ def test_checks_report_where_a_bad_model_fails():
     assert recip.worst_wi.shape == (3,)
     energy = check_energy(m.Lambert(0.9), n=4096)
     assert energy.passed and energy.max_albedo == pytest.approx(0.9)
+
+
+def test_energy_check_is_not_fooled_by_a_narrow_grazing_lobe():
+    """Plain quadrature over-counts this lobe tenfold; the automatic choice samples the lobe."""
+    furnace = m.CookTorrance(alpha=0.05, fresnel="schlick", f0=1.0)
+    grazing = [np.radians(85.0)]
+    assert check_energy(furnace, theta_i=grazing, n=256, method="quadrature").max_albedo > 2.0
+    report = check_energy(furnace, theta_i=grazing, n=65_536)
+    assert report.passed
+    assert report.max_albedo == pytest.approx(0.899034465, abs=4 * report.stderr[0] + 1e-4)
