@@ -1,0 +1,89 @@
+"""Helpers benchmarks share: the machine description, wall-clock timers, plain-text tables, random directions."""
+
+from __future__ import annotations
+
+import os
+import platform
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+#: Where benchmarks write figures unless told otherwise (git-ignored).
+DEFAULT_OUT = Path("out/bench")
+
+
+def _cpuinfo_field(name: str) -> str | None:
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return None
+    for line in text.splitlines():
+        key, sep, value = line.partition(":")
+        if sep and key.strip() == name:
+            return value.strip()
+    return None
+
+
+def machine_description() -> str:
+    """One line naming the CPU model, usable cores, vector extensions and the software versions."""
+    cpu = _cpuinfo_field("model name") or platform.processor() or platform.machine()
+    # Cores this process may run on (a container can see more than it gets).
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    flags = set((_cpuinfo_field("flags") or "").split())
+    simd = next((name for flag, name in (("avx512f", "AVX-512"), ("avx2", "AVX2")) if flag in flags), "")
+    simd_text = f", {simd}" if simd else ""
+    return (
+        f"{cpu}, {cores} cores{simd_text}; {platform.system()} {platform.release()}; "
+        f"Python {platform.python_version()}, numpy {np.__version__}"
+    )
+
+
+def _timed_calls(fn: Callable[[], object], repeats: int) -> list[float]:
+    if repeats < 1:
+        raise ValueError(f"repeats = {repeats}: need at least one timed call")
+    fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return times
+
+
+def median_time(fn: Callable[[], object], repeats: int = 5) -> float:
+    """Median wall-clock seconds of ``repeats`` calls of fn, after one untimed warm-up call.
+
+    The warm-up absorbs first-call costs (page faults of fresh buffers, imports, JIT compilation) that
+    are not what a benchmark compares; the median ignores the odd call slowed by the rest of the machine.
+    """
+    return statistics.median(_timed_calls(fn, repeats))
+
+
+def best_time(fn: Callable[[], object], repeats: int = 5) -> float:
+    """Fastest wall-clock seconds of ``repeats`` calls of fn, after one untimed warm-up call.
+
+    On a machine shared with other work, noise only ever adds time, so the minimum is the most
+    reproducible estimate of what the code itself costs (the advice of the ``timeit`` docs).
+    """
+    return min(_timed_calls(fn, repeats))
+
+
+def uniform_hemisphere(rng: np.random.Generator, n: int, dtype: type[np.floating] = np.float64) -> np.ndarray:
+    """n unit directions (n, 3) uniform over the upper hemisphere (z > 0), in the given dtype."""
+    z = rng.random(n)
+    r = np.sqrt(1.0 - z * z)
+    phi = 2.0 * np.pi * rng.random(n)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1).astype(dtype)
+
+
+def format_table(headers: list[str], rows: list[list[str]]) -> str:
+    """A plain-text table with right-aligned columns, the header underlined; cells are preformatted."""
+    widths = [max(len(str(r[i])) for r in [headers, *rows]) for i in range(len(headers))]
+
+    def line(cells: list[str]) -> str:
+        return "  ".join(str(c).rjust(w) for c, w in zip(cells, widths, strict=True))
+
+    return "\n".join([line(headers), "  ".join("-" * w for w in widths), *(line(r) for r in rows)])
