@@ -24,11 +24,14 @@ import numpy as np
 import numpy.typing as npt
 
 from model import fresnel, microfacet
-from model._params import Channel, channel, choice, scalar
+from model._params import Channel, ParameterError, channel, choice, scalar
 from model.base import Array, Model, Pair
 
 FRESNELS: tuple[str, ...] = ("conductor", "dielectric", "schlick")
 FORMS: tuple[str, ...] = ("walter", "cook_torrance_1982")
+#: Smallest batch (direction pairs) evaluated by the numba kernel in model.kernels; both paths agree
+#: bit for bit in float64 (tests/model/test_kernels.py), so this only trades speed.
+KERNEL_MIN_PAIRS = 4096
 
 
 def walter_from_1982(value_1982: npt.ArrayLike) -> Array:
@@ -49,7 +52,8 @@ class CookTorrance(Model):
     Parameters:
         alpha: roughness in (0, 10], dimensionless (GGX alpha or Beckmann RMS slope); values below
             1e-4 are clamped to 1e-4 (see :mod:`model.microfacet`).
-        distribution: "ggx" (default), "beckmann" or "blinn_phong" (exponent 2/alpha^2 - 2).
+        distribution: "ggx" (default), "beckmann" or "blinn_phong" (exponent 2/alpha^2 - 2, so
+            alpha <= 1 there).
         masking: "smith" (exact separable, default), "smith_correlated", "smith_schlick"
             (k = alpha/2), "v_groove" or "none".
         fresnel: "conductor" (default), "dielectric" or "schlick".
@@ -71,7 +75,9 @@ class CookTorrance(Model):
     form: str = "walter"
 
     exemption = (
-        "energy is promised only for the Walter form with exact Smith masking and no Lambertian term: "
+        "energy is promised only for the Walter form with GGX or Beckmann, exact Smith masking and no "
+        "Lambertian term (Blinn-Phong borrows Beckmann's Smith Lambda, an approximation: albedo 1.044 "
+        "measured at alpha 1, theta_i 89 deg); "
         "the 1982 form is 4x larger, masking 'none' grows like 1/cos at grazing, Smith-Schlick and "
         "V-groove can overestimate G, and rho_d adds to a specular albedo that reaches F"
     )
@@ -80,6 +86,11 @@ class CookTorrance(Model):
         name = type(self).__name__
         object.__setattr__(self, "alpha", scalar(name, "alpha", self.alpha, 0.0, 10.0, lo_open=True))
         choice(name, "distribution", self.distribution, microfacet.DISTRIBUTIONS)
+        if self.distribution == "blinn_phong" and self.alpha > 1.0:
+            raise ParameterError(
+                f"{name}.alpha = {self.alpha!r} is outside (0, 1] for distribution 'blinn_phong': "
+                "its exponent 2/alpha^2 - 2 would be negative"
+            )
         choice(name, "masking", self.masking, microfacet.MASKINGS)
         choice(name, "fresnel", self.fresnel, FRESNELS)
         choice(name, "form", self.form, FORMS)
@@ -89,9 +100,10 @@ class CookTorrance(Model):
         object.__setattr__(self, "rho_d", channel(name, "rho_d", self.rho_d, 0.0, 1.0))
 
     def conserves_energy(self) -> bool:
-        """True for the Walter form with exact Smith masking and no Lambertian term (see exemption)."""
+        """True for the Walter form, GGX or Beckmann, exact Smith, no Lambertian term (see exemption)."""
         return (
             self.form == "walter"
+            and self.distribution in ("ggx", "beckmann")
             and self.masking in ("smith", "smith_correlated")
             and not np.any(np.asarray(self.rho_d) > 0)
         )
@@ -118,6 +130,18 @@ class CookTorrance(Model):
         den = np.maximum(4.0 * p.cos_i * p.cos_o, p.tiny)
         scale = 4.0 if self.form == "cook_torrance_1982" else 1.0
         return scale * d * g / den
+
+    def eval(self, wi: npt.ArrayLike, wo: npt.ArrayLike) -> Array:
+        """BRDF value f_r in 1/sr (cosine excluded); the compiled kernel where it applies, else numpy."""
+        # Below KERNEL_MIN_PAIRS the parallel kernel's wake-up after idle (~7 ms measured on the
+        # 2-core VM) outweighs its speed, while numpy takes ~1 ms for 4096 pairs.
+        if np.size(wi) // 3 < KERNEL_MIN_PAIRS and np.size(wo) // 3 < KERNEL_MIN_PAIRS:
+            return super().eval(wi, wo)
+        # Imported here so that numba loads at the first large evaluation, not with the package.
+        from model import kernels
+
+        f = kernels.cook_torrance(self, wi, wo)
+        return super().eval(wi, wo) if f is None else f
 
     def _eval(self, p: Pair) -> Array:
         spec = self.specular(p) * self.fresnel_term(p, p.cos_d)

@@ -18,6 +18,7 @@ from model import ParameterError
         (lambda: m.CookTorrance(alpha=-1), "CookTorrance.alpha"),
         (lambda: m.CookTorrance(alpha=(0.1, 0.2)), "expected a single number"),
         (lambda: m.CookTorrance(distribution="gauss"), "'ggx', 'beckmann', 'blinn_phong'"),
+        (lambda: m.CookTorrance(alpha=1.5, distribution="blinn_phong"), "outside (0, 1] for distribution"),
         (lambda: m.CookTorrance(masking="smyth"), "CookTorrance.masking = 'smyth'"),
         (lambda: m.CookTorrance(eta=0.0), "CookTorrance.eta"),
         (lambda: m.CookTorrance(k=-1.0), "CookTorrance.k"),
