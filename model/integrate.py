@@ -118,7 +118,8 @@ def integrate_hemisphere(
         n_theta = max(1, int(np.sqrt(n / 2)))
         dirs, weights = hemisphere_quadrature(n_theta, max(1, n // n_theta))
         vals = np.asarray(func(dirs))
-        value = np.tensordot(weights, vals, axes=(0, 0))
+        # An explicit weighted sum, not tensordot: BLAS threads contend with the caller's on 2 cores.
+        value = np.sum(weights.reshape((-1,) + (1,) * (vals.ndim - 1)) * vals, axis=0)
         return Estimate(value, np.zeros_like(value))
     if method == "mc":
         g = np.random.default_rng(rng)
