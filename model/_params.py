@@ -40,13 +40,9 @@ def channel(
         )
     flat = arr.reshape(-1)
     for v in flat:
-        bad = (
-            (not math.isfinite(v)
-            and not (v == math.inf and hi == math.inf and not hi_open))
-            or (v < lo or (lo_open and v == lo))
-            or (v > hi or (hi_open and v == hi))
-        )
-        if bad or math.isnan(v):
+        # +inf passes only where the range is open-ended above (e.g. a light's intensity).
+        inside = lo <= v <= hi and not (lo_open and v == lo) and not (hi_open and v == hi)
+        if not inside or (math.isinf(v) and not v == hi == math.inf):
             raise ParameterError(
                 f"{owner}.{name} = {value!r} is outside its valid range "
                 f"{_fmt_range(lo, hi, lo_open, hi_open)}"
@@ -95,3 +91,12 @@ def scalar(
     result = channel(owner, name, value, lo, hi, lo_open=lo_open, hi_open=hi_open)
     assert isinstance(result, float)
     return result
+
+
+def albedo_sum(owner: str, rho_d: Channel, rho_s: Channel) -> None:
+    """Require rho_d + rho_s <= 1 per channel: for these models the sum is the normal-incidence albedo."""
+    total = np.asarray(rho_d) + np.asarray(rho_s)
+    if np.any(total > 1.0 + 1e-12):
+        raise ParameterError(
+            f"{owner}: rho_d + rho_s = {total.tolist()} exceeds 1; the sum is the albedo at normal incidence"
+        )

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from model._params import Channel, ParameterError, channel, choice, scalar
+from model._params import Channel, albedo_sum, channel, choice, scalar
 from model.base import Array, Model, Pair
 
 
@@ -55,9 +55,7 @@ class BlinnPhong(Model):
         object.__setattr__(self, "rho_s", channel(name, "rho_s", self.rho_s, 0.0, 1.0))
         object.__setattr__(self, "n", scalar(name, "n", self.n, 0.0, 1e6))
         choice(name, "normalization", self.normalization, ("exact", "approx"))
-        total = np.asarray(self.rho_d) + np.asarray(self.rho_s)
-        if np.any(total > 1.0 + 1e-12):
-            raise ParameterError(f"{name}: rho_d + rho_s = {total.tolist()} exceeds 1")
+        albedo_sum(name, self.rho_d, self.rho_s)
 
     @property
     def norm(self) -> float:

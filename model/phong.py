@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from model._params import Channel, ParameterError, channel, scalar
+from model._params import Channel, albedo_sum, channel, scalar
 from model.base import Array, Model, Pair
 
 
@@ -36,11 +36,7 @@ class Phong(Model):
         object.__setattr__(self, "rho_d", channel(name, "rho_d", self.rho_d, 0.0, 1.0))
         object.__setattr__(self, "rho_s", channel(name, "rho_s", self.rho_s, 0.0, 1.0))
         object.__setattr__(self, "n", scalar(name, "n", self.n, 0.0, 1e6))
-        total = np.asarray(self.rho_d) + np.asarray(self.rho_s)
-        if np.any(total > 1.0 + 1e-12):
-            raise ParameterError(
-                f"{name}: rho_d + rho_s = {total.tolist()} exceeds 1; the sum is the albedo at normal incidence"
-            )
+        albedo_sum(name, self.rho_d, self.rho_s)
 
     def _eval(self, p: Pair) -> Array:
         # cos(alpha_r) = wo . reflect(wi) = 2 cos_i cos_o - wi . wo, without forming the mirror vector.
