@@ -1,0 +1,46 @@
+"""The interface every motion link satisfies; the runner knows only this."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Protocol, runtime_checkable
+
+Pose = Mapping[str, float]
+"""Joint angles in degrees keyed by axis name."""
+
+
+class LinkError(RuntimeError):
+    """A link failed in a way the caller should see: names the device, axis and what went wrong."""
+
+
+class MoveTimeout(LinkError, TimeoutError):
+    """Axes did not reach their targets within the timeout; carries the last positions read."""
+
+    def __init__(self, message: str, positions_deg: Mapping[str, float]) -> None:
+        super().__init__(message)
+        self.positions_deg = dict(positions_deg)
+
+
+@runtime_checkable
+class MotionLink(Protocol):
+    """Moves a set of axes to a pose and reports where they actually are (degrees)."""
+
+    def move_to(self, pose: Pose) -> None:
+        """Start a move of every named axis to its target in degrees (limits checked first)."""
+        ...
+
+    def wait_in_position(self, timeout_s: float) -> dict[str, float]:
+        """Poll until every moving axis is within tolerance; return actual positions in degrees."""
+        ...
+
+    def read_positions(self) -> dict[str, float]:
+        """Actual joint angles in degrees of every axis."""
+        ...
+
+    def stop(self) -> None:
+        """Halt all motion now, keeping the device powered and holding."""
+        ...
+
+    def shutdown(self) -> None:
+        """Stop and leave the hardware safe (torque off / controller idle) and release the port."""
+        ...
