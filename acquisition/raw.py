@@ -1,4 +1,4 @@
-"""Decode camera files into linear, unscaled ``Frame`` objects: RAW through rawpy, TIFF, 8-bit images.
+"""Decode camera RAW files through rawpy (LibRaw) into linear, unscaled ``Frame`` objects.
 
 What the HDR merge needs from a file is the sensor counts exactly as the ADC delivered them, the black
 and white levels, the CFA layout and the exposure the camera says it used. ``read_raw`` gives exactly
@@ -10,16 +10,11 @@ interpolation directions from the data and so are not linear in the signal (meas
 mosaic doubled the AHD output to within quantisation at the median pixel, but single pixels moved by
 more than 1500 counts of 65535).
 
-``read_frame`` dispatches on the file extension and is what cameras that deliver files use.
+TIFF and 8-bit images, and the ``read_frame`` dispatcher by extension, are in ``acquisition.images``.
 """
 
 from __future__ import annotations
 
-import errno
-import io
-import math
-import os
-import struct
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -27,25 +22,22 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import rawpy
-import tifffile
 
-from acquisition.frame import Frame, FrameError, FrameKind
-
-PathLike = str | os.PathLike[str]
-
-DEFAULT_EXPOSURE_RTOL = 0.05
-"""Relative tolerance between a requested and a reported exposure time.
-
-Cameras report nominal shutter speeds (1/125 s is 2^-7 s = 0.0078 s on the sensor, 2.4 % off); a
-frame from the wrong step of a bracket is at least a third of a stop (26 %) away."""
+from acquisition.frame import Frame, FrameError
+from acquisition.metadata import (
+    DEFAULT_EXPOSURE_RTOL,
+    PathLike,
+    _check_file,
+    _gain_from_iso,
+    _resolve_exposure,
+    _tiff_metadata,
+    camera_identity,
+)
 
 RAW_EXTENSIONS = frozenset(
     ".dng .kdc .dcr .cr2 .cr3 .crw .nef .nrw .arw .srf .sr2 .orf .rw2 .raf .pef .srw .erf .mrw .3fr "
     ".fff .iiq .mos .mef .rwl .x3f .raw".split()
 )
-TIFF_EXTENSIONS = frozenset({".tif", ".tiff"})
-EIGHT_BIT_EXTENSIONS = frozenset({".png", ".jpg", ".jpeg"})
-FRAME_EXTENSIONS = RAW_EXTENSIONS | TIFF_EXTENSIONS | EIGHT_BIT_EXTENSIONS
 
 # Parameters that keep LibRaw's postprocess linear in the sensor counts (REFERENCE.md, HDR section):
 # no gamma, no auto brightness, unit white balance, camera colour space, and no "adjust maximum"
@@ -62,46 +54,6 @@ LINEAR_POSTPROCESS: Mapping[str, Any] = {
 }
 
 _RAW_ERRORS: tuple[type[BaseException], ...] = (rawpy.LibRawError, rawpy.NotSupportedError)
-
-
-def _check_file(path: PathLike, what: str) -> Path:
-    p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(errno.ENOENT, f"{what} not found", str(p))
-    if not p.is_file():
-        raise FrameError(f"{p}: not a regular file (cannot read it as {what})")
-    return p
-
-
-def check_exposure(actual_s: float, expected_s: float | None, where: str, rtol: float = DEFAULT_EXPOSURE_RTOL) -> None:
-    """Raise FrameError when exposure ``actual_s`` (seconds) differs from ``expected_s`` by more than ``rtol``."""
-    if expected_s is None:
-        return
-    if not (math.isfinite(expected_s) and expected_s > 0):
-        raise ValueError(f"{where}: expected exposure {expected_s!r} s is not a positive number of seconds")
-    if abs(actual_s - expected_s) > rtol * expected_s:
-        raise FrameError(
-            f"{where}: exposure {actual_s:.6g} s in the file disagrees with the requested {expected_s:.6g} s "
-            f"(ratio {actual_s / expected_s:.4g}, tolerance {rtol:.3g} relative)"
-        )
-
-
-def _resolve_exposure(
-    reported_s: float | None,
-    exposure_s: float | None,
-    expected_exposure_s: float | None,
-    rtol: float,
-    where: str,
-) -> tuple[float, str]:
-    """Pick the exposure to record: the file's metadata, else the caller's fallback; then check it."""
-    if reported_s is not None and math.isfinite(reported_s) and reported_s > 0:
-        value, source = float(reported_s), "metadata"
-    elif exposure_s is not None:
-        value, source = float(exposure_s), "caller"
-    else:
-        raise FrameError(f"{where}: the file carries no exposure time; pass exposure_s= (seconds) if you know it")
-    check_exposure(value, expected_exposure_s, where, rtol)
-    return value, source
 
 
 def cfa_pattern_string(raw_pattern: npt.ArrayLike, color_desc: bytes | str, where: str = "RAW") -> str:
@@ -123,44 +75,6 @@ def cfa_pattern_string(raw_pattern: npt.ArrayLike, color_desc: bytes | str, wher
             "use demosaic_linear() for a linear image instead"
         )
     return letters
-
-
-def _tiff_metadata(path: Path | io.BytesIO) -> dict[str, Any]:
-    """Identity and exposure tags from IFD0 and its EXIF IFD; empty for files that are not TIFF-based."""
-    out: dict[str, Any] = {}
-    try:
-        with tifffile.TiffFile(path) as tif:
-            tags = tif.pages.first.tags
-            exif = tags.valueof("ExifTag", {}) or {}
-            for key in ("Make", "Model", "UniqueCameraModel", "CameraSerialNumber", "BodySerialNumber"):
-                value = exif.get(key) if key == "BodySerialNumber" else tags.valueof(key)
-                if isinstance(value, str | bytes) and value.strip():
-                    out[key] = (value.decode("ascii", "replace") if isinstance(value, bytes) else value).strip("\x00 ")
-            for key, code in (("ExposureTime", 33434), ("ISOSpeedRatings", 34855)):
-                value = exif.get(key, tags.valueof(code))
-                if isinstance(value, tuple | list) and len(value) == 2 and key == "ExposureTime":
-                    value = value[0] / value[1] if value[1] else None
-                elif isinstance(value, tuple | list):
-                    value = value[0] if value else None
-                if value is not None:
-                    out[key] = float(value)
-    except Exception:  # metadata is best effort; the pixel decoder reports real damage
-        return {}
-    return out
-
-
-def camera_identity(meta: Mapping[str, Any]) -> str:
-    """Camera identity string from TIFF/DNG metadata (UniqueCameraModel, Make, Model, serial)."""
-    make, model = meta.get("Make", ""), meta.get("Model", "")
-    if model and make and model.split()[0].lower() in make.lower().split():
-        name = model  # "Canon" + "Canon EOS R5", "Eastman Kodak Company" + "Kodak DC50": the model says it all
-    else:
-        name = f"{make} {model}".strip()
-    name = name or meta.get("UniqueCameraModel", "")
-    serial = meta.get("BodySerialNumber") or meta.get("CameraSerialNumber")
-    if name and serial:
-        name = f"{name} #{serial}"
-    return name or "unknown"
 
 
 def _raw_extra(raw: rawpy.RawPy) -> dict[str, object]:
@@ -199,10 +113,6 @@ def _refine(meta: Mapping[str, Any], iso: float, shutter: float) -> tuple[float,
     if exact and shutter > 0 and abs(exact - shutter) <= 1e-6 * exact:
         shutter = exact  # LibRaw stores the RATIONAL as float32; the tag has it exactly (1/250, not 0.0040000002)
     return iso, shutter
-
-
-def _gain_from_iso(iso: float | None) -> float:
-    return iso / 100.0 if iso is not None and math.isfinite(iso) and iso > 0 else 1.0
 
 
 def read_raw(
@@ -353,160 +263,3 @@ def bin_bayer(frame: Frame) -> npt.NDArray[np.float64]:
     out[..., 1] = 0.5 * (greens[0] + greens[1])
     out[..., 2] = planes[cfa.index("B")]
     return out
-
-
-def read_tiff(
-    path: PathLike,
-    *,
-    exposure_s: float | None = None,
-    expected_exposure_s: float | None = None,
-    rtol: float = DEFAULT_EXPOSURE_RTOL,
-    black_level: float = 0.0,
-    timestamp_s: float = 0.0,
-) -> Frame:
-    """Read a TIFF: 16-bit or float as ``linear``, 8-bit as ``8bit``; exposure (seconds) from EXIF ExposureTime.
-
-    A TIFF holding a CFA mosaic or DNG tags is decoded by ``read_raw``. Tethering software writes linear
-    TIFFs black-subtracted, hence the default ``black_level`` of 0 counts. Colour data is RGB order.
-    """
-    p = _check_file(path, "TIFF file")
-    where = str(p)
-    try:
-        with tifffile.TiffFile(p) as tif:
-            page = tif.pages.first
-            is_raw = page.photometric == tifffile.PHOTOMETRIC.CFA or "DNGVersion" in page.tags
-            max_sample = page.tags.valueof("MaxSampleValue")
-            data = None if is_raw else page.asarray()
-    except (tifffile.TiffFileError, ValueError, OSError, struct.error) as exc:
-        raise FrameError(f"{p}: cannot decode as TIFF: {type(exc).__name__}: {exc}") from exc
-    if is_raw or data is None:
-        return read_raw(
-            p, exposure_s=exposure_s, expected_exposure_s=expected_exposure_s, rtol=rtol, timestamp_s=timestamp_s
-        )
-    meta = _tiff_metadata(p)
-    if data.ndim == 3 and data.shape[-1] == 4:
-        data = data[..., :3]  # drop alpha
-    if data.ndim not in (2, 3) or (data.ndim == 3 and data.shape[-1] != 3):
-        raise FrameError(f"{p}: TIFF of shape {data.shape} is neither a single image plane nor RGB")
-    kind: FrameKind
-    if data.dtype == np.uint8:
-        kind, white = "8bit", 255.0
-    elif data.dtype in (np.uint16, np.uint32):
-        kind, white = "linear", float(np.iinfo(data.dtype).max)
-        if isinstance(max_sample, int | float) and max_sample > 0:
-            white = float(max_sample)
-        elif isinstance(max_sample, tuple) and max_sample:
-            white = float(max(max_sample))
-    elif np.issubdtype(data.dtype, np.floating):
-        kind, white = "linear", math.inf  # a float image has no ADC ceiling
-    else:
-        raise FrameError(f"{p}: TIFF sample type {data.dtype} is not supported (8/16/32-bit unsigned or float)")
-    value, source = _resolve_exposure(meta.get("ExposureTime"), exposure_s, expected_exposure_s, rtol, where)
-    iso = meta.get("ISOSpeedRatings")
-    return Frame(
-        data=data,
-        kind=kind,
-        exposure_s=value,
-        gain=_gain_from_iso(iso),
-        black_level=float(black_level),
-        white_level=white,
-        timestamp_s=timestamp_s,
-        camera_id=camera_identity(meta),
-        source=where,
-        extra={"exposure_source": source, "iso": iso},
-    )
-
-
-def _jpeg_exif(p: Path) -> dict[str, Any]:
-    """EXIF of a JPEG: the APP1 payload is a TIFF structure, which tifffile parses."""
-    try:
-        blob = p.read_bytes()
-    except OSError:
-        return {}
-    if blob[:2] != b"\xff\xd8":
-        return {}
-    pos = 2
-    while pos + 4 <= len(blob) and blob[pos] == 0xFF:
-        marker = blob[pos + 1]
-        length = int.from_bytes(blob[pos + 2 : pos + 4], "big")
-        if marker == 0xE1 and blob[pos + 4 : pos + 10] == b"Exif\x00\x00":
-            return _tiff_metadata(io.BytesIO(blob[pos + 10 : pos + 2 + length]))
-        if marker == 0xDA:  # start of scan: no metadata after this
-            break
-        pos += 2 + length
-    return {}
-
-
-def read_8bit(
-    path: PathLike,
-    *,
-    exposure_s: float | None = None,
-    expected_exposure_s: float | None = None,
-    rtol: float = DEFAULT_EXPOSURE_RTOL,
-    timestamp_s: float = 0.0,
-) -> Frame:
-    """Read an 8-bit PNG or JPEG (OpenCV) as an ``8bit`` Frame in RGB order; exposure (seconds) from JPEG EXIF.
-
-    PNG carries no exposure time: pass ``exposure_s``.
-    """
-    import cv2  # deferred: OpenCV is slow to import and only 8-bit images need it
-
-    p = _check_file(path, "image file")
-    data = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-    if data is None:
-        raise FrameError(f"{p}: OpenCV cannot decode this file as an image (corrupt or unsupported)")
-    if data.dtype != np.uint8:
-        raise FrameError(
-            f"{p}: {data.dtype} image; only 8-bit PNG/JPEG are read (their encoding is a display curve). "
-            "Save linear data as 16-bit TIFF or DNG"
-        )
-    if data.ndim == 3:
-        data = cv2.cvtColor(data, cv2.COLOR_BGRA2RGB if data.shape[-1] == 4 else cv2.COLOR_BGR2RGB)
-    meta = _jpeg_exif(p) if p.suffix.lower() in (".jpg", ".jpeg") else {}
-    value, source = _resolve_exposure(meta.get("ExposureTime"), exposure_s, expected_exposure_s, rtol, str(p))
-    iso = meta.get("ISOSpeedRatings")
-    return Frame(
-        data=data,
-        kind="8bit",
-        exposure_s=value,
-        gain=_gain_from_iso(iso),
-        black_level=0.0,
-        white_level=255.0,
-        timestamp_s=timestamp_s,
-        camera_id=camera_identity(meta),
-        source=str(p),
-        extra={"exposure_source": source, "iso": iso},
-    )
-
-
-def read_frame(
-    path: PathLike,
-    *,
-    exposure_s: float | None = None,
-    expected_exposure_s: float | None = None,
-    rtol: float = DEFAULT_EXPOSURE_RTOL,
-    timestamp_s: float = 0.0,
-) -> Frame:
-    """Read a RAW, TIFF, PNG or JPEG file into a Frame by its extension; exposures in seconds.
-
-    ``exposure_s`` is used only when the file has no exposure time; ``expected_exposure_s`` raises
-    FrameError when the file's exposure differs from it by more than ``rtol`` (relative).
-    """
-    p = Path(path)
-    suffix = p.suffix.lower()
-    kwargs: dict[str, Any] = {
-        "exposure_s": exposure_s,
-        "expected_exposure_s": expected_exposure_s,
-        "rtol": rtol,
-        "timestamp_s": timestamp_s,
-    }
-    if suffix in RAW_EXTENSIONS:
-        return read_raw(p, **kwargs)
-    if suffix in TIFF_EXTENSIONS:
-        return read_tiff(p, **kwargs)
-    if suffix in EIGHT_BIT_EXTENSIONS:
-        return read_8bit(p, **kwargs)
-    raw_list = ", ".join(sorted(RAW_EXTENSIONS))
-    raise FrameError(
-        f"{p}: unsupported file extension {p.suffix or '(none)'!r}; expected a RAW ({raw_list}), TIFF, PNG or JPEG file"
-    )

@@ -20,7 +20,8 @@ from typing import Any
 
 from acquisition.cameras import CameraError, ClockLike, RealTimeClock, import_backend
 from acquisition.frame import ExposureSettings, Frame
-from acquisition.raw import DEFAULT_EXPOSURE_RTOL, read_frame
+from acquisition.images import read_frame
+from acquisition.metadata import DEFAULT_EXPOSURE_RTOL
 
 _SHUTTER_RE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(?:/\s*(\d+(?:\.\d+)?))?\s*(?:s|sec|\"|'')?\s*$", re.IGNORECASE)
 

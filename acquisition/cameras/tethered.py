@@ -19,7 +19,8 @@ from pathlib import Path
 
 from acquisition.cameras import CameraError, ClockLike, RealTimeClock
 from acquisition.frame import ExposureSettings, Frame, FrameError
-from acquisition.raw import DEFAULT_EXPOSURE_RTOL, check_exposure, read_frame
+from acquisition.images import read_frame
+from acquisition.metadata import DEFAULT_EXPOSURE_RTOL, check_exposure
 
 DEFAULT_PATTERNS: tuple[str, ...] = (
     "*.dng",

@@ -14,14 +14,13 @@ import tifffile
 
 from acquisition.dng import MIN_DNG_SIDE, write_dng
 from acquisition.frame import Frame, FrameError
+from acquisition.images import read_frame, read_tiff
 from acquisition.raw import (
     LINEAR_POSTPROCESS,
     bin_bayer,
     cfa_pattern_string,
     demosaic_linear,
-    read_frame,
     read_raw,
-    read_tiff,
 )
 
 KODAK = Path("/work/shared/data/raw/kodak_dc50.kdc")
