@@ -1,9 +1,14 @@
-"""Helpers benchmarks share: the machine description, wall-clock timers, plain-text tables, random directions."""
+"""Helpers benchmarks share: the machine description, wall-clock timers, tables, random directions.
+
+Tables are plain text for the terminal (``format_table``) or markdown for the docs (``markdown_table``);
+``write_section`` rewrites one benchmark's section of docs/benchmarks.md.
+"""
 
 from __future__ import annotations
 
 import os
 import platform
+import re
 import statistics
 import time
 from collections.abc import Callable
@@ -87,3 +92,29 @@ def format_table(headers: list[str], rows: list[list[str]]) -> str:
         return "  ".join(str(c).rjust(w) for c, w in zip(cells, widths, strict=True))
 
     return "\n".join([line(headers), "  ".join("-" * w for w in widths), *(line(r) for r in rows)])
+
+
+def markdown_table(headers: list[str], rows: list[list[str]]) -> str:
+    """A GitHub-style markdown table; cells are preformatted strings, one list per row."""
+    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("-" * (len(h) + 2) for h in headers) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def write_section(path: Path, name: str, body: str) -> None:
+    """Replace (or append) the ``<!-- section: name -->`` ... ``<!-- end: name -->`` block of a markdown file.
+
+    Each benchmark owns one named section of docs/benchmarks.md and rewrites only that one, so benchmarks
+    run in any order leave the others' sections alone. The file is created if missing; the new text is
+    written to a temporary file beside it and renamed over it, so a reader never sees half a file.
+    """
+    text = path.read_text() if path.exists() else ""
+    block = f"<!-- section: {name} -->\n{body.rstrip()}\n<!-- end: {name} -->"
+    pattern = re.compile(rf"<!-- section: {re.escape(name)} -->.*?<!-- end: {re.escape(name)} -->", re.S)
+    if pattern.search(text):
+        text = pattern.sub(lambda _: block, text)
+    else:
+        text = text.rstrip("\n") + "\n\n" + block + "\n"
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
