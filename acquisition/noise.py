@@ -65,7 +65,10 @@ class SensorNoise:
     def variance_dn2(
         self, signal_dn: npt.ArrayLike, exposure_s: float, gain: float = 1.0
     ) -> npt.NDArray[np.float64]:
-        """Variance in counts^2 of a reading whose mean is ``signal_dn`` counts above black (dark included)."""
+        """Variance in counts^2 of a reading with ``signal_dn`` photo-signal counts above black.
+
+        Pass the photo-signal only: the dark current's shot noise over ``exposure_s`` is added here.
+        """
         s = np.maximum(np.asarray(signal_dn, dtype=np.float64), 0.0)
         g = self.e_per_dn / gain  # electrons per count at this gain
         dark_e = self.dark_current_e_per_s * exposure_s
