@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from rig.cli_sim import add_sim_parser
+
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
 
@@ -37,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("--out", default="out/demo", help="output directory (default: out/demo)")
     demo.set_defaults(func=_demo)
+    add_sim_parser(sub)
     return parser
 
 

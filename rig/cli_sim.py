@@ -1,0 +1,111 @@
+"""``gonio sim servos`` and ``gonio sim grbl``: serve a virtual bus on a pty until Ctrl-C.
+
+The simulator package is imported only when one of these commands runs (nothing in rig imports it at
+module level), so the controller never depends on the stand-in hardware.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from rig.clock import ScaledClock
+
+SDK_BAUDRATES = (57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
+
+
+def _ids(text: str) -> tuple[int, ...]:
+    """Parse ``1,2,3`` or ``1-4`` into servo ids 0..252."""
+    ids: list[int] = []
+    for part in text.split(","):
+        part = part.strip()
+        try:
+            if "-" in part:
+                lo, hi = (int(p) for p in part.split("-", 1))
+                ids.extend(range(lo, hi + 1))
+            else:
+                ids.append(int(part))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"servo ids {text!r}: expected e.g. 1,2,3 or 1-4") from None
+    bad = [i for i in ids if not 0 <= i <= 252]
+    if bad or not ids or len(set(ids)) != len(ids):
+        raise argparse.ArgumentTypeError(f"servo ids {text!r}: expected distinct ids in 0..252")
+    return tuple(ids)
+
+
+def _speed(text: str) -> float:
+    """Parse a positive time factor."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"speed {text!r}: expected a positive factor (1 = real time)")
+    return value
+
+
+def _announce(line: str) -> None:
+    print(line, flush=True)
+
+
+def _servos(args: argparse.Namespace) -> int:
+    from simulator.dynamixel import open_virtual_bus
+    from simulator.dynamixel.bus import serve_forever
+
+    clock = ScaledClock(args.speed)
+    with open_virtual_bus(ids=args.ids, baudrate=args.baud, clock=clock, return_delay=args.return_delay) as bus:
+        _announce(bus.port)
+        print(
+            f"virtual Dynamixel bus: XM430-W350 ids {','.join(map(str, args.ids))} at {args.baud} baud, "
+            f"time x{args.speed:g}; Ctrl-C stops",
+            file=sys.stderr,
+            flush=True,
+        )
+        serve_forever(bus)
+    return 0
+
+
+def _grbl(args: argparse.Namespace) -> int:
+    from simulator.grbl import serve_grbl
+
+    def ready(port: str) -> None:
+        _announce(port)
+        print(
+            f"virtual GRBL 1.1h: axes {args.axes}, 115200 baud, time x{args.speed:g}; Ctrl-C stops",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    serve_grbl(ScaledClock(args.speed), axes=args.axes, on_ready=ready)
+    return 0
+
+
+def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``gonio sim servos`` and ``gonio sim grbl``."""
+    sim = sub.add_parser(
+        "sim",
+        help="serve simulated hardware on a pseudo-terminal",
+        description="Serve a virtual Dynamixel bus or GRBL controller on a pseudo-terminal. The first line on "
+        "stdout is the device path; point any client at it (gonio, dynamixel_sdk, ROBOTIS tools, a G-code sender).",
+    )
+    kinds = sim.add_subparsers(dest="sim_kind", required=True, metavar="DEVICE")
+    servos = kinds.add_parser(
+        "servos",
+        help="virtual Dynamixel Protocol 2.0 bus of XM430-W350 servos",
+        epilog="Example: gonio sim servos --ids 1-4 --baud 1000000",
+    )
+    servos.add_argument("--ids", type=_ids, default=(1, 2, 3, 4), help="servo ids, e.g. 1,2,3 or 1-4 (default 1-4)")
+    servos.add_argument(
+        "--baud", type=int, choices=SDK_BAUDRATES, default=1_000_000, help="servos' baud rate (default 1000000)"
+    )
+    servos.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
+    servos.add_argument(
+        "--return-delay", action="store_true", help="honour each servo's Return Delay Time in real time"
+    )
+    servos.set_defaults(func=_servos)
+    grbl = kinds.add_parser(
+        "grbl", help="virtual GRBL 1.1 motion controller", epilog="Example: gonio sim grbl --axes XYZ"
+    )
+    grbl.add_argument("--axes", default="XYZ", help="axis letters (default XYZ)")
+    grbl.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
+    grbl.set_defaults(func=_grbl)
