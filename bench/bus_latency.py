@@ -1,0 +1,201 @@
+"""Bus latency: what one poll and one move-and-settle cycle cost over the virtual buses, against the wire.
+
+The anchor is the physical limit: the time the packets' bytes take on the line at its baud rate (10 bits
+per byte: start, 8 data, stop), with a zero Return Delay Time. A pty moves bytes at memory speed, so the
+measured time is all software (the SDK's packet handling, our bus owner, the virtual servos); a ratio
+below 1 says the software is faster than a real 1 Mbps line could be, so on hardware the wire (plus the
+USB adapter's latency timer) sets the pace, not this code.
+
+1. One SYNC_READ of Moving, Moving Status and Present Position (14 bytes) from 4 servos: through the raw
+   ``dynamixel_sdk`` GroupSyncRead, and through ``DynamixelBus.sync_read`` (lock, retries, error bytes).
+2. One full move-and-settle cycle of ``DynamixelLink`` (one SYNC_WRITE, then SYNC_READ polls every 10 ms
+   of simulated time until all four axes are in position), on a ManualClock so the motion costs only its
+   polls; its wire time is the SYNC_WRITE plus every poll's bytes.
+3. One GRBL status poll (``?`` -> ``<Idle|MPos:...>``) at 115200 baud, for comparison.
+
+Run: ``.venv/bin/python -m bench.bus_latency [--reps N] [--no-docs]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import dynamixel_sdk as sdk
+
+from bench._common import format_table, machine_description, markdown_table, write_section
+from rig.axis import Axis
+from rig.clock import ManualClock
+from rig.links.dynamixel import DynamixelLink, DynamixelOptions
+from rig.links.dynamixel_table import X_SERIES
+from rig.links.grbl import GrblLink
+from simulator.dynamixel import open_virtual_bus
+from simulator.grbl import open_virtual_grbl
+
+DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
+BAUD = 1_000_000
+GRBL_BAUD = 115_200
+IDS = (1, 2, 3, 4)
+BITS_PER_BYTE = 10
+POSE = {"light": 30.0, "camera": -45.0, "tilt": 10.0, "roll": 90.0}
+
+
+def packet_bytes(n_params: int) -> int:
+    """Bytes of a Protocol 2.0 packet with ``n_params`` parameter bytes (header, id, length, inst, CRC)."""
+    return 10 + n_params
+
+
+def sync_read_bytes(n_servos: int, data: int) -> int:
+    """Wire bytes of one SYNC_READ: the instruction (address, length, ids) and one status per servo."""
+    return packet_bytes(4 + n_servos) + n_servos * packet_bytes(1 + data)
+
+
+def sync_write_bytes(n_servos: int, data: int) -> int:
+    """Wire bytes of one SYNC_WRITE (no replies)."""
+    return packet_bytes(4 + n_servos * (1 + data))
+
+
+def wire_s(n_bytes: int, baud: int) -> float:
+    """Seconds ``n_bytes`` take on a UART line at ``baud``."""
+    return n_bytes * BITS_PER_BYTE / baud
+
+
+def timings(fn: Callable[[], object], reps: int) -> tuple[float, float]:
+    """Median and 95th percentile wall-clock seconds of ``reps`` calls after 10 warm-up calls."""
+    for _ in range(10):
+        fn()
+    samples = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        samples.append(time.perf_counter() - t0)
+    samples.sort()
+    return statistics.median(samples), samples[int(0.95 * (len(samples) - 1))]
+
+
+def axes() -> list[Axis]:
+    """Four XM430 joints, 0 deg at tick 2048, 60 deg/s and 120 deg/s^2."""
+    return [
+        Axis(name=n, address=i, units_per_degree=4096 / 360, zero_offset_deg=-180.0, min_deg=-150.0, max_deg=150.0)
+        for i, n in zip(IDS, POSE, strict=True)
+    ]
+
+
+def dynamixel_rows(reps: int) -> list[list[str]]:
+    """Rows for the Dynamixel measurements."""
+    address, size = X_SERIES.motion_block
+    read_wire = wire_s(sync_read_bytes(len(IDS), size), BAUD)
+    rows = []
+    clock = ManualClock()
+    with open_virtual_bus(ids=IDS, baudrate=BAUD, clock=clock) as vbus:
+        port = sdk.PortHandler(vbus.port)
+        ph = sdk.PacketHandler(2.0)
+        port.openPort()
+        group = sdk.GroupSyncRead(port, ph, address, size)
+        for i in IDS:
+            group.addParam(i)
+
+        def raw() -> None:
+            if group.txRxPacket() != sdk.COMM_SUCCESS:
+                raise RuntimeError("raw SDK sync read failed")
+
+        med, p95 = timings(raw, reps)
+        port.closePort()
+        rows.append(["SYNC_READ 4 x 14 B, raw dynamixel_sdk", f"{med * 1e3:.3f}", f"{p95 * 1e3:.3f}",
+                     f"{read_wire * 1e3:.3f}", f"{med / read_wire:.2f}", "1"])  # fmt: skip
+
+        link = DynamixelLink.open(vbus.port, axes(), clock=clock, latency_timer_ms=60.0,
+                                  options=DynamixelOptions(poll_interval_s=0.01))  # fmt: skip
+        try:
+            med, p95 = timings(lambda: link.bus.sync_read(address, size, list(IDS)), reps)
+            rows.append(["SYNC_READ 4 x 14 B, DynamixelBus", f"{med * 1e3:.3f}", f"{p95 * 1e3:.3f}",
+                         f"{read_wire * 1e3:.3f}", f"{med / read_wire:.2f}", "1"])  # fmt: skip
+
+            polls = 0
+            original = link.poll
+
+            def counted() -> dict[str, object]:
+                nonlocal polls
+                polls += 1
+                return original()  # type: ignore[return-value]
+
+            link.poll = counted  # type: ignore[method-assign,assignment]
+            targets = [POSE, dict.fromkeys(POSE, 0.0)]
+            cycles: list[float] = []
+            polls_per_cycle: list[int] = []
+            settle_s: list[float] = []
+            for k in range(max(4, reps // 50)):
+                polls = 0
+                t_sim = clock.now()
+                t0 = time.perf_counter()
+                link.move_to(targets[k % 2])
+                link.wait_in_position(timeout_s=60.0)
+                cycles.append(time.perf_counter() - t0)
+                polls_per_cycle.append(polls)
+                settle_s.append(clock.now() - t_sim)
+            n_polls = statistics.median(polls_per_cycle)
+            cycle_wire = wire_s(sync_write_bytes(len(IDS), 4), BAUD) + n_polls * read_wire
+            med = statistics.median(cycles)
+            rows.append([f"move and settle ({statistics.median(settle_s):.2f} s simulated, {n_polls:.0f} polls)",
+                         f"{med * 1e3:.2f}", f"{max(cycles) * 1e3:.2f}", f"{cycle_wire * 1e3:.2f}",
+                         f"{med / cycle_wire:.2f}", f"{n_polls:.0f}"])  # fmt: skip
+        finally:
+            link.shutdown()
+    return rows
+
+
+def grbl_row(reps: int) -> list[str]:
+    """Row for one GRBL status poll."""
+    clock = ManualClock()
+    with open_virtual_grbl(clock=clock, axes="XY") as server:
+        grbl_axes = [Axis(name="light", address="X", units_per_degree=10.0),
+                     Axis(name="camera", address="Y", units_per_degree=10.0)]  # fmt: skip
+        link = GrblLink(server.port, grbl_axes, clock=clock)
+        try:
+            report = f"<Idle|MPos:{0:.3f},{0:.3f}|FS:0,0>\r\n"
+            wire = wire_s(1 + len(report), GRBL_BAUD)
+            med, p95 = timings(link.status, max(50, reps // 4))
+        finally:
+            link.shutdown()
+    return ["GRBL status poll ? -> report", f"{med * 1e3:.3f}", f"{p95 * 1e3:.3f}", f"{wire * 1e3:.3f}",
+            f"{med / wire:.2f}", "1"]  # fmt: skip
+
+
+HEADERS = ["exchange", "median ms", "p95 ms", "wire ms (anchor)", "ratio", "round trips"]
+
+
+def main() -> None:
+    """Measure, print and record the bus latencies."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--reps", type=int, default=1000, help="timed repetitions per exchange (default 1000)")
+    parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/benchmarks.md")
+    args = parser.parse_args()
+    machine = machine_description()
+    today = datetime.date.today().isoformat()
+    rows = [*dynamixel_rows(args.reps), grbl_row(args.reps)]
+    print(f"# bus_latency, {today}\nMachine: {machine}\nDynamixel at {BAUD} baud, GRBL at {GRBL_BAUD} baud; "
+          "ratio = measured median / wire time of the same bytes\n")  # fmt: skip
+    print(format_table(HEADERS, rows))
+    if not args.no_docs:
+        body = "\n".join([
+            "## Bus latency (`bench/bus_latency.py`)",
+            "",
+            f"Command: `.venv/bin/python -m bench.bus_latency --reps {args.reps}`. Run on {today}.",
+            f"Machine: {machine}.",
+            "",
+            "Virtual buses on a pty, the real `dynamixel_sdk` and pyserial as clients. Anchor: the wire time of the "
+            f"same packets at the line's baud rate (10 bits per byte, zero return delay). Dynamixel at {BAUD} baud, "
+            f"GRBL at {GRBL_BAUD}. A ratio below 1 means the software costs less than the line itself would.",
+            "",
+            markdown_table(HEADERS, rows),
+        ])  # fmt: skip
+        write_section(DOCS, "bus_latency", body)
+        print(f"\nSection 'bus_latency' written to {DOCS}")
+
+
+if __name__ == "__main__":
+    main()
