@@ -25,6 +25,9 @@ test: lint
 bench: $(STAMP)
 	$(BIN)/python -m bench.model_throughput
 	$(BIN)/python -m bench.model_tradeoffs
+	$(BIN)/python -m bench.hdr
+	$(BIN)/python -m bench.exposure_plan
+	$(BIN)/python -m bench.bus_latency
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -47,29 +47,41 @@ the result's metadata says so.
 
 Speed. One compiled pass (numba, all cores) reads each frame once per pixel and keeps the sums in
 registers; a bracket of 7 frames of 1 MP x 3 merges in a few tens of milliseconds.
+
+Layout. This module holds the result types (:class:`HdrImage`, :class:`HdrFlag`) and :func:`merge_linear`
+with its weighting decision; bracket validation, frame data, black levels and darks are in
+:mod:`acquisition.bracket`, the clip-level measurement in :mod:`acquisition.saturation` (re-exported here
+as :func:`measure_saturation`), and the compiled pass in :mod:`acquisition.hdr_kernel`.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import enum
-import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
-import numba
 import numpy as np
 import numpy.typing as npt
-from numba import prange
 
-from acquisition.frame import Frame, FrameError, FrameKind
+from acquisition.bracket import (
+    F32,
+    DarkSpec,
+    _black_map,
+    _dark_offset,
+    _find_dark,
+    _frame_data,
+    _min_black,
+    check_bracket,
+    describe_frame,
+)
+from acquisition.frame import Frame, FrameError
+from acquisition.hdr_kernel import _padded_size, _Prepared
 from acquisition.noise import SensorNoise
+from acquisition.saturation import measure_saturation
 
 Weighting = Literal["auto", "sum", "inverse_variance"]
-DarkSpec = Frame | Sequence[Frame] | npt.NDArray[np.generic] | float
-F32 = npt.NDArray[np.float32]
 
 #: Auto weighting: run the inverse-variance pass if it lowers the standard error by more than IV_GAIN ...
 IV_GAIN = 0.01
@@ -77,10 +89,6 @@ IV_GAIN = 0.01
 IV_FRACTION = 0.01
 #: Pixels sampled for the auto weighting decision.
 IV_SAMPLE = 65536
-#: A bracket has at most this many frames (the compiled pass is specialised on a padded frame count).
-MAX_FRAMES = 64
-
-_JIT: dict[str, Any] = {"fastmath": False, "error_model": "numpy", "boundscheck": False, "cache": True}
 
 
 class HdrFlag(enum.IntFlag):
@@ -135,322 +143,6 @@ class HdrImage:
     def dark(self) -> npt.NDArray[np.bool_]:
         """Pixels dark in every frame."""
         return (self.flags & HdrFlag.DARK) != 0
-
-
-def describe_frame(index: int, frame: Frame) -> str:
-    """How error messages name a frame: its index in the bracket and its file or camera and exposure."""
-    if frame.source:
-        return f"frame {index} ({frame.source})"
-    return f"frame {index} ({frame.camera_id}, {frame.exposure_s:g} s)"
-
-
-def check_bracket(frames: Sequence[Frame], kinds: Sequence[FrameKind]) -> FrameKind:
-    """Validate a bracket (non-empty, one kind among ``kinds``, one shape, positive exposures); its kind."""
-    if len(frames) == 0:
-        raise FrameError("empty bracket: no frames to merge")
-    for i, f in enumerate(frames):
-        if not isinstance(f, Frame):
-            raise FrameError(f"frame {i}: expected an acquisition.frame.Frame, got {type(f).__name__}")
-    first = frames[0]
-    for i, f in enumerate(frames):
-        where = describe_frame(i, f)
-        if f.kind != first.kind:
-            raise FrameError(
-                f"{where} is kind {f.kind!r} but {describe_frame(0, first)} is kind {first.kind!r}: "
-                "a bracket must be of one kind"
-            )
-        if f.shape != first.shape:
-            raise FrameError(f"{where} has shape {f.shape} but {describe_frame(0, first)} has shape {first.shape}")
-        if not (math.isfinite(f.exposure_s) and f.exposure_s > 0):
-            raise FrameError(f"{where}: exposure_s = {f.exposure_s!r}, expected a positive number of seconds")
-        if not (math.isfinite(f.gain) and f.gain > 0):
-            raise FrameError(f"{where}: gain = {f.gain!r}, expected a positive number")
-        if f.cfa_pattern != first.cfa_pattern:
-            raise FrameError(
-                f"{where} has CFA pattern {f.cfa_pattern!r} but {describe_frame(0, first)} has "
-                f"{first.cfa_pattern!r}"
-            )
-    if first.kind not in kinds:
-        hint = ": merge 8-bit frames with acquisition.response.merge_8bit" if first.kind == "8bit" else ""
-        raise FrameError(f"{describe_frame(0, first)} is kind {first.kind!r}, expected one of {tuple(kinds)}{hint}")
-    if len(frames) > MAX_FRAMES:
-        raise FrameError(f"bracket of {len(frames)} frames: at most {MAX_FRAMES} can be merged at once")
-    return first.kind
-
-
-def _min_black(frame: Frame) -> float:
-    b = frame.black_level
-    return float(min(b)) if isinstance(b, tuple) else float(b)
-
-
-def _flat(a: npt.NDArray[Any]) -> npt.NDArray[Any]:
-    return np.ascontiguousarray(a).reshape(-1)
-
-
-# ---------------------------------------------------------------------------------------------------------
-# Saturation
-
-
-@numba.njit(**_JIT)
-def _top_counts(flat: npt.NDArray[Any], lo: Any, mid: Any) -> tuple[int, int, Any]:  # pragma: no cover
-    # Pixels in [lo, mid), pixels >= mid and their sum, in one branch-free pass. ``lo - lo`` is a zero of
-    # lo's type: integers for integer data (exact sums, and 5x faster than a parallel float reduction).
-    zero = lo - lo
-    n_below = 0
-    n_top = 0
-    sum_top = zero
-    for i in range(flat.size):
-        v = flat[i] + zero
-        top = v >= mid
-        n_top += 1 if top else 0
-        sum_top += v if top else zero
-        n_below += 1 if (v >= lo and not top) else 0
-    return n_below, n_top, sum_top
-
-
-def _plateau_level(frame: Frame, min_pixels: int, min_fraction: float) -> float | None:
-    """Mean of the clipped plateau at the top of one frame, counts above black; None if there is none."""
-    flat = _flat(frame.data)
-    if flat.dtype != np.uint16:
-        flat = flat.astype(np.float32, copy=False)
-    top = float(flat.max())
-    black = _min_black(frame)
-    # The plateau of a full-well clip is as wide as the read noise after the clip (a few counts); 0.2 % of
-    # the range is wide enough for any sensor seen, narrow beside the shot noise of unclipped pixels there.
-    width = max(4.0, 2e-3 * (top - black))
-    lo, mid = top - 4.0 * width, top - width
-    if flat.dtype == np.uint16:
-        n_below, n_top, sum_top = _top_counts(flat, math.ceil(lo), math.ceil(mid))
-    else:
-        n_below, n_top, sum_top = _top_counts(flat, lo, mid)
-    # A clip piles pixels up at the top: far more there than the density just below (3 widths) predicts.
-    if n_top < max(min_pixels, min_fraction * flat.size) or n_top * 3 < 8 * n_below:
-        return None
-    level = float(sum_top) / n_top - black
-    # A frame whose values all sit in a narrow band (a dark frame, a very short exposure) piles up too;
-    # no sensor clips in the bottom tenth of its range.
-    return level if level >= 0.1 * (frame.white_level - black) else None
-
-
-def measure_saturation(
-    frames: Sequence[Frame], *, min_pixels: int = 16, min_fraction: float = 1e-5
-) -> float | None:
-    """Clip level in counts above black, measured from the plateau of clipped pixels; None if nothing clips.
-
-    Looks at the frames from the longest exposure down and takes the median of the plateau levels (mean
-    value of the plateau) of the first two that show one: a pile-up of at least ``min_pixels`` (and
-    ``min_fraction`` of the pixels) within 0.2 % of the range below the frame's maximum, 8x denser than the
-    values just below, and at least a tenth of the way from black to ``white_level`` (a frame whose values
-    all sit in a narrow band near black piles up too). A full-well clip below the ADC's white level shows
-    up here, which trusting ``white_level`` would miss. The frames should share one gain (the clip in
-    counts scales with it); :func:`merge_linear` measures each gain's frames apart.
-    """
-    check_bracket(frames, ("raw", "linear"))
-    levels: list[float] = []
-    for f in sorted(frames, key=lambda f: f.exposure_s * f.gain, reverse=True):
-        level = _plateau_level(f, min_pixels, min_fraction)
-        if level is not None:
-            levels.append(level)
-            if len(levels) == 2:
-                break
-    return float(np.median(levels)) if levels else None
-
-
-# ---------------------------------------------------------------------------------------------------------
-# The compiled pass
-
-
-@functools.cache
-def _merge_kernel(with_maps: bool, inverse_variance: bool) -> Any:
-    """The compiled pass for one configuration (compile-time constants, so the other branches fold away).
-
-    ``with_maps``: some offset is a per-pixel map. The frame loop runs over the whole (padded) tuple, a
-    compile-time length, so LLVM unrolls it and resolves each tuple item statically; padding frames have
-    threshold -inf and are never used. Measured on 1 MP x 3 x 7 frames: a run-time frame count, a run-time
-    tuple index, or the inverse-variance loop present but switched off by a run-time flag each made the
-    sum pass 2-5x slower.
-    """
-
-    @numba.njit(parallel=True, **_JIT)
-    def kernel(  # pragma: no cover (compiled)
-        data: Any, offmaps: Any, off_s: Any, thr_raw: Any, expo: Any, shot: Any, cvar: Any,
-        shortest: int, longest: int, dark_thr: float, rad: Any, var: Any, flags: Any, used: Any,
-    ) -> None:
-        for i in prange(rad.size):
-            s = 0.0
-            e = 0.0
-            a = 0.0
-            b = 0.0
-            m = 0
-            y_short = 0.0
-            y_long = 0.0
-            for k in range(len(data)):
-                y = np.float64(data[k][i]) - (offmaps[k][i] if with_maps else off_s[k])
-                # Picked up inside the unrolled loop: indexing the tuple with a run-time index costs more.
-                if k == shortest:
-                    y_short = y
-                if k == longest:
-                    y_long = y
-                if data[k][i] < thr_raw[k]:
-                    s += y
-                    e += expo[k]
-                    a += shot[k]
-                    b += cvar[k]
-                    m += 1
-            used[i] = m
-            if m == 0:
-                rad[i] = y_short / expo[shortest]
-                var[i] = np.inf
-                flags[i] = 1
-                continue
-            x = s / e
-            xp = x if x > 0.0 else 0.0
-            if inverse_variance and m > 1:
-                wy = 0.0
-                we = 0.0
-                for k in range(len(data)):
-                    if data[k][i] < thr_raw[k]:
-                        w = expo[k] / (xp * shot[k] + cvar[k])
-                        wy += w * (np.float64(data[k][i]) - (offmaps[k][i] if with_maps else off_s[k]))
-                        we += w * expo[k]
-                rad[i] = wy / we
-                var[i] = 1.0 / we
-            else:
-                rad[i] = x
-                var[i] = (xp * a + b) / (e * e)
-            flags[i] = 2 if y_long < dark_thr else 0
-
-    return kernel
-
-
-def _padded_size(n_frames: int) -> int:
-    # The compiled pass is specialised on the tuple length: pad to a multiple of 8 so brackets of 1-8
-    # frames share one compilation (cached on disk), 9-16 another, and so on.
-    return 8 * math.ceil(n_frames / 8)
-
-
-@dataclass(frozen=True)
-class _Prepared:
-    """Everything the compiled pass needs, per frame padded to ``_padded_size`` (padding is never used)."""
-
-    data: tuple[npt.NDArray[Any], ...]
-    offmaps: tuple[npt.NDArray[Any], ...] | None
-    off_s: npt.NDArray[np.float64]
-    thr_raw: npt.NDArray[np.float64]
-    expo: npt.NDArray[np.float64]
-    shot: npt.NDArray[np.float64]
-    cvar: npt.NDArray[np.float64]
-    shortest: int
-    longest: int
-    dark_thr: float
-
-    def subsample(self, stride: int) -> _Prepared:
-        """The same merge on every ``stride``-th pixel."""
-        def sub(arrays: tuple[npt.NDArray[Any], ...]) -> tuple[npt.NDArray[Any], ...]:
-            cache: dict[int, npt.NDArray[Any]] = {}
-            return tuple(cache.setdefault(id(a), np.ascontiguousarray(a[::stride])) for a in arrays)
-
-        maps = None if self.offmaps is None else sub(self.offmaps)
-        return dataclasses.replace(self, data=sub(self.data), offmaps=maps)
-
-    def run(self, inverse_variance: bool) -> tuple[F32, F32, npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:
-        """Radiance, variance, flags and frames used, flat."""
-        n = self.data[0].size
-        rad = np.empty(n, np.float32)
-        var = np.empty(n, np.float32)
-        flags = np.empty(n, np.uint8)
-        used = np.empty(n, np.uint8)
-        with_maps = self.offmaps is not None
-        maps = self.offmaps if self.offmaps is not None else (np.zeros(1, np.float32),) * len(self.data)
-        _merge_kernel(with_maps, inverse_variance)(
-            self.data, maps, self.off_s, self.thr_raw, self.expo, self.shot, self.cvar, self.shortest, self.longest,
-            self.dark_thr, rad, var, flags, used,
-        )
-        return rad, var, flags, used
-
-
-def _black_map(frame: Frame, index: int, cache: dict[tuple[Any, ...], F32]) -> F32 | float:
-    """The frame's black level: a number, or a per-pixel map for per-CFA-site or per-channel levels."""
-    b = frame.black_level
-    if not isinstance(b, tuple):
-        return float(b)
-    if len(set(b)) == 1:
-        return float(b[0])
-    key = (b, frame.shape, frame.kind)
-    if key in cache:
-        return cache[key]
-    if frame.kind == "raw" and len(b) == 4:
-        tile = np.asarray(b, np.float32).reshape(2, 2)
-        h, w = frame.shape
-        full = np.tile(tile, (h // 2 + 1, w // 2 + 1))[:h, :w]
-    elif frame.data.ndim == 3 and len(b) == frame.shape[2]:
-        full = np.broadcast_to(np.asarray(b, np.float32), frame.shape)
-    else:
-        raise FrameError(
-            f"{describe_frame(index, frame)}: black_level {b!r} has {len(b)} values; expected 1, 4 (one per "
-            "CFA site of a raw frame) or one per channel"
-        )
-    cache[key] = _flat(full.astype(np.float32))
-    return cache[key]
-
-
-def _find_dark(darks: Mapping[float, DarkSpec], exposure_s: float) -> DarkSpec | None:
-    for key, spec in darks.items():
-        if math.isclose(float(key), exposure_s, rel_tol=1e-4):
-            return spec
-    return None
-
-
-def _dark_offset(
-    index: int, frame: Frame, spec: DarkSpec, noise: SensorNoise
-) -> tuple[npt.NDArray[Any] | float, float, str]:
-    """Offset to subtract (counts: a flat map or a number), the variance it adds (counts^2), a description."""
-    where = describe_frame(index, frame)
-    one_frame_var = float(noise.variance_dn2(0.0, frame.exposure_s, frame.gain))
-    if isinstance(spec, Frame):
-        spec = [spec]
-    if isinstance(spec, Sequence) and not isinstance(spec, (str, bytes)) and all(isinstance(d, Frame) for d in spec):
-        if len(spec) == 0:
-            raise FrameError(f"{where}: the dark list for {frame.exposure_s:g} s is empty")
-        total = np.zeros(frame.shape if len(spec) > 1 else (), np.float32)
-        for j, d in enumerate(spec):
-            dwhere = f"dark {j} for {frame.exposure_s:g} s ({d.source or d.camera_id})"
-            if d.shape != frame.shape:
-                raise FrameError(f"{dwhere} has shape {d.shape} but {where} has shape {frame.shape}")
-            if d.kind != frame.kind:
-                raise FrameError(f"{dwhere} is kind {d.kind!r} but {where} is kind {frame.kind!r}")
-            if not math.isclose(d.gain, frame.gain, rel_tol=1e-4):
-                raise FrameError(f"{dwhere} has gain {d.gain!r} but {where} has gain {frame.gain!r}")
-            if not math.isclose(d.exposure_s, frame.exposure_s, rel_tol=1e-3):
-                raise FrameError(f"{dwhere} has exposure_s {d.exposure_s!r} but {where} has {frame.exposure_s!r}")
-            if len(spec) > 1:
-                total += np.asarray(d.data, dtype=np.float32)
-        if len(spec) == 1 and spec[0].data.dtype == np.uint16:
-            # As delivered: the compiled pass reads uint16 maps directly, saving a float copy per frame.
-            return _flat(spec[0].data), one_frame_var, "1 dark frame"
-        total /= len(spec)
-        return _flat(total), one_frame_var / len(spec), f"{len(spec)} dark frames averaged"
-    arr = np.asarray(spec, dtype=np.float32)
-    if arr.ndim == 0:
-        if not math.isfinite(float(arr)):
-            raise FrameError(f"{where}: dark level {float(arr)!r} for {frame.exposure_s:g} s is not finite")
-        return float(arr), 0.0, "mean dark level"
-    if arr.shape != frame.shape:
-        raise FrameError(f"master dark for {frame.exposure_s:g} s has shape {arr.shape} but {where} has {frame.shape}")
-    return _flat(arr), 0.0, "master dark array"
-
-
-def _frame_data(frames: Sequence[Frame]) -> list[npt.NDArray[Any]]:
-    """Flat pixel arrays in one dtype the compiled pass knows: uint16 as delivered, anything else float32."""
-    if all(f.data.dtype == np.uint16 for f in frames):
-        return [_flat(f.data) for f in frames]
-    out = []
-    for i, f in enumerate(frames):
-        a = _flat(f.data).astype(np.float32, copy=False)
-        if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
-            raise FrameError(f"{describe_frame(i, f)} has non-finite pixel values")
-        out.append(a)
-    return out
 
 
 def merge_linear(

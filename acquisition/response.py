@@ -38,8 +38,9 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from acquisition.bracket import check_bracket, describe_frame
 from acquisition.frame import Frame, FrameError
-from acquisition.hdr import HdrFlag, HdrImage, check_bracket, describe_frame
+from acquisition.hdr import HdrFlag, HdrImage
 
 Method = Literal["debevec", "robertson"]
 METHODS: tuple[Method, ...] = ("debevec", "robertson")
