@@ -282,3 +282,20 @@ def test_model_tables_and_error_texts() -> None:
         table_for_model(4242, where="servo 3")
     assert describe_hardware_error(0x24) == "overheating, overload"
     assert X_SERIES.motion_block == (122, 14)
+
+
+def test_delayed_replies_within_the_timeout_are_waited_for(bus: VirtualDynamixelBus, clock: ManualClock) -> None:
+    with open_link(bus, clock) as link:
+        bus.servo(2).faults.reply_delay_s = 0.03  # under the 122 ms reply window (2 x 60 ms + 2 ms)
+        assert set(link.read_positions()) == set(NAMES)
+        assert link.bus.comm_retries_used == 0
+        bus.servo(2).faults.clear()
+
+
+def test_late_replies_fail_after_bounded_retries(bus: VirtualDynamixelBus, clock: ManualClock) -> None:
+    with open_link(bus, clock) as link:
+        bus.servo(2).faults.reply_delay_s = 0.3
+        link.bus.retries = 1
+        with pytest.raises(CommunicationError, match=r"after 2 attempts"):
+            link.read_positions()
+        bus.servo(2).faults.clear()
