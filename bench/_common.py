@@ -46,10 +46,12 @@ def machine_description() -> str:
     )
 
 
-def _timed_calls(fn: Callable[[], object], repeats: int) -> list[float]:
+def timed_calls(fn: Callable[[], object], repeats: int, warmup: int = 1) -> list[float]:
+    """Wall-clock seconds of each of ``repeats`` calls of fn, after ``warmup`` untimed calls."""
     if repeats < 1:
         raise ValueError(f"repeats = {repeats}: need at least one timed call")
-    fn()
+    for _ in range(warmup):
+        fn()
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -64,7 +66,7 @@ def median_time(fn: Callable[[], object], repeats: int = 5) -> float:
     The warm-up absorbs first-call costs (page faults of fresh buffers, imports, JIT compilation) that
     are not what a benchmark compares; the median ignores the odd call slowed by the rest of the machine.
     """
-    return statistics.median(_timed_calls(fn, repeats))
+    return statistics.median(timed_calls(fn, repeats))
 
 
 def best_time(fn: Callable[[], object], repeats: int = 5) -> float:
@@ -73,7 +75,7 @@ def best_time(fn: Callable[[], object], repeats: int = 5) -> float:
     On a machine shared with other work, noise only ever adds time, so the minimum is the most
     reproducible estimate of what the code itself costs (the advice of the ``timeit`` docs).
     """
-    return min(_timed_calls(fn, repeats))
+    return min(timed_calls(fn, repeats))
 
 
 def uniform_hemisphere(rng: np.random.Generator, n: int, dtype: type[np.floating] = np.float64) -> np.ndarray:

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import dynamixel_sdk as sdk
 
-from bench._common import format_table, machine_description, markdown_table, write_section
+from bench._common import format_table, machine_description, markdown_table, timed_calls, write_section
 from rig.axis import Axis
 from rig.clock import ManualClock
 from rig.links.dynamixel import DynamixelLink, DynamixelOptions
@@ -66,14 +66,7 @@ def wire_s(n_bytes: int, baud: int) -> float:
 
 def timings(fn: Callable[[], object], reps: int) -> tuple[float, float]:
     """Median and 95th percentile wall-clock seconds of ``reps`` calls after 10 warm-up calls."""
-    for _ in range(10):
-        fn()
-    samples = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        fn()
-        samples.append(time.perf_counter() - t0)
-    samples.sort()
+    samples = sorted(timed_calls(fn, reps, warmup=10))
     return statistics.median(samples), samples[int(0.95 * (len(samples) - 1))]
 
 

@@ -252,48 +252,40 @@ class DynamixelBus:
         what = f"sync write of address {address} to servos {sorted(values)}"
         self._transact(what, lambda: (None, group.txPacket(), 0))
 
-    def sync_read(self, address: int, size: int, ids: Sequence[int]) -> dict[int, Reading]:
-        """Read one block from several servos with one SYNC_READ; keeps each servo's error byte."""
-        group = sdk.GroupSyncRead(self._port, self._ph, address, size)
-        for sid in ids:
-            group.addParam(sid)
+    def _group_read(self, what: str, group: object, sizes: Mapping[int, int]) -> dict[int, Reading]:
+        """Send a sync or bulk read ``group`` and collect each servo's status packet with its error byte."""
 
         def call() -> tuple[dict[int, Reading], int, int]:
-            # GroupSyncRead.rxPacket drops the error byte, and with it the Alert bit; read replies ourselves.
-            result = group.txPacket()
+            # The SDK groups' rxPacket drops the error byte, and with it the Alert bit: read replies ourselves.
+            result = group.txPacket()  # type: ignore[attr-defined]
             out: dict[int, Reading] = {}
             if result != sdk.COMM_SUCCESS:
                 return out, result, 0
-            for sid in ids:
+            for sid, size in sizes.items():
                 data, result, error = self._ph.readRx(self._port, sid, size)
                 if result != sdk.COMM_SUCCESS:
                     return out, result, 0
                 out[sid] = Reading(bytes(data), int(error))
             return out, sdk.COMM_SUCCESS, 0
 
-        readings, _ = self._transact(f"sync read of {size} bytes at {address} from servos {list(ids)}", call)
+        readings, _ = self._transact(what, call)
         return readings
+
+    def sync_read(self, address: int, size: int, ids: Sequence[int]) -> dict[int, Reading]:
+        """Read one block from several servos with one SYNC_READ; keeps each servo's error byte."""
+        group = sdk.GroupSyncRead(self._port, self._ph, address, size)
+        for sid in ids:
+            group.addParam(sid)
+        what = f"sync read of {size} bytes at {address} from servos {list(ids)}"
+        return self._group_read(what, group, dict.fromkeys(ids, size))
 
     def bulk_read(self, requests: Mapping[int, tuple[int, int]]) -> dict[int, Reading]:
         """Read a different block (address, size) from each servo with one BULK_READ."""
         group = sdk.GroupBulkRead(self._port, self._ph)
         for sid, (address, size) in requests.items():
             group.addParam(sid, address, size)
-
-        def call() -> tuple[dict[int, Reading], int, int]:
-            result = group.txPacket()
-            out: dict[int, Reading] = {}
-            if result != sdk.COMM_SUCCESS:
-                return out, result, 0
-            for sid, (_, size) in requests.items():
-                data, result, error = self._ph.readRx(self._port, sid, size)
-                if result != sdk.COMM_SUCCESS:
-                    return out, result, 0
-                out[sid] = Reading(bytes(data), int(error))
-            return out, sdk.COMM_SUCCESS, 0
-
-        readings, _ = self._transact(f"bulk read from servos {sorted(requests)}", call)
-        return readings
+        sizes = {sid: size for sid, (_, size) in requests.items()}
+        return self._group_read(f"bulk read from servos {sorted(requests)}", group, sizes)
 
     def table(self, servo_id: int) -> ControlTable:
         """The control table layout of servo ``servo_id``, from its model number."""
