@@ -130,9 +130,18 @@ def _check_exposure(exposure_s: float, gain: float) -> None:
 
 
 def sensor_counts(
-    radiance: npt.ArrayLike, noise: SensorNoise, exposure_s: float, rng: np.random.Generator | int, gain: float = 1.0
+    radiance: npt.ArrayLike,
+    noise: SensorNoise,
+    exposure_s: float,
+    rng: np.random.Generator | int,
+    gain: float = 1.0,
+    offset_dn: npt.ArrayLike | None = None,
 ) -> npt.NDArray[np.unsignedinteger]:
-    """Raw counts (black included, quantised, clipped to the ADC range) of one exposure of ``radiance`` (counts/s)."""
+    """Raw counts (black included, quantised, clipped to the ADC range) of one exposure of ``radiance`` (counts/s).
+
+    ``offset_dn`` is a fixed-pattern offset in counts (per pixel, broadcast against the image) added to the
+    black level: the same in every frame of a camera, so dark frames carry it and subtracting them removes it.
+    """
     rad = _validated_radiance(radiance)
     _check_exposure(exposure_s, gain)
     gen = as_generator(rng)
@@ -152,6 +161,8 @@ def sensor_counts(
         del read
     signal *= np.float32(gain / noise.e_per_dn)
     signal += np.float32(noise.black_level_dn)
+    if offset_dn is not None:
+        signal += np.asarray(offset_dn, dtype=np.float32)
     np.rint(signal, out=signal)
     white = math.floor(noise.white_level_dn)
     np.clip(signal, 0.0, white, out=signal)
@@ -181,6 +192,7 @@ def capture(
     tone_curve: ToneCurve = srgb_curve,
     camera_id: str = "simulated",
     timestamp_s: float = 0.0,
+    offset_dn: npt.ArrayLike | None = None,
 ) -> Frame:
     """One exposure (seconds) of ``radiance`` (counts/s at gain 1, (H, W) or (H, W, C)) as a Frame.
 
@@ -200,7 +212,7 @@ def capture(
         raise ValueError(f"kind = {kind!r}: expected 'raw', 'linear' or '8bit'")
     elif cfa_pattern is not None:
         raise ValueError(f"cfa_pattern = {cfa_pattern!r} given for kind {kind!r}: only raw frames have one")
-    counts = sensor_counts(rad, noise, exposure_s, rng, gain)
+    counts = sensor_counts(rad, noise, exposure_s, rng, gain, offset_dn)
     extra: dict[str, object] = {"simulated": True}
     if kind == "8bit":
         extra["tone_curve"] = getattr(tone_curve, "__name__", repr(tone_curve))
@@ -226,13 +238,14 @@ def dark_frame(
     cfa_pattern: str | None = None,
     camera_id: str = "simulated",
     timestamp_s: float = 0.0,
+    offset_dn: npt.ArrayLike | None = None,
 ) -> Frame:
     """A frame of ``exposure_s`` seconds with the shutter closed: black level, dark current and read noise."""
     if kind == "raw" and len(shape) != 2:
         raise ValueError(f"a raw dark frame is an (H, W) mosaic, got shape {shape}")
     return capture(
         np.zeros(shape), noise, exposure_s, rng, gain=gain, kind=kind, cfa_pattern=cfa_pattern,
-        camera_id=camera_id, timestamp_s=timestamp_s,
+        camera_id=camera_id, timestamp_s=timestamp_s, offset_dn=offset_dn,
     )
 
 
