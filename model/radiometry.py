@@ -72,7 +72,7 @@ class PointLight:
 
 @dataclass(frozen=True)
 class SpotLight(PointLight):
-    """A spot light: full intensity within beam_width, a smooth falloff to 0 at cutoff (Mitsuba's spot).
+    """A spot light: full intensity within beam_width, falling linearly in angle to 0 at cutoff (Mitsuba 3's spot).
 
     Parameters:
         beam_width: half-angle of full intensity in radians, (0, cutoff].
@@ -90,14 +90,14 @@ class SpotLight(PointLight):
         )
 
     def intensity_at(self, off_axis: npt.ArrayLike) -> Array:
-        """Intensity in W/sr at off_axis radians: 1 inside the beam, smoothstep to 0 at the cutoff."""
+        """Intensity in W/sr at off_axis radians: full inside the beam, linear in angle to 0 at the cutoff."""
         a = np.asarray(off_axis, dtype=float)
         if self.cutoff > self.beam_width:
             t = np.clip((self.cutoff - a) / (self.cutoff - self.beam_width), 0.0, 1.0)
         else:
             t = (a <= self.cutoff).astype(float)
-        w = t * t * (3.0 - 2.0 * t)
-        return np.multiply.outer(w, np.asarray(self.intensity, dtype=float))
+        # Mitsuba 3.9's spot falls off linearly in angle (measured: beam 10, cutoff 20 deg gives 0.75 at 12.5 deg).
+        return np.multiply.outer(t, np.asarray(self.intensity, dtype=float))
 
 
 def reflected_radiance(brdf_value: npt.ArrayLike, irradiance: npt.ArrayLike) -> Array:

@@ -32,10 +32,11 @@ def test_point_light_inverse_square_and_cosine():
 
 def test_spot_light_profile():
     spot = m.SpotLight(intensity=10.0, distance=1.0, beam_width=np.radians(10), cutoff=np.radians(20))
-    i = spot.intensity_at(np.radians([0.0, 10.0, 15.0, 20.0, 30.0]))
+    i = spot.intensity_at(np.radians([0.0, 10.0, 12.5, 15.0, 20.0, 30.0]))
     assert i[0] == i[1] == 10.0
-    assert i[2] == pytest.approx(5.0)
-    assert i[3] == i[4] == 0.0
+    assert i[2] == pytest.approx(7.5)  # linear in angle, as Mitsuba 3's spot emitter
+    assert i[3] == pytest.approx(5.0)
+    assert i[4] == i[5] == 0.0
 
 
 def test_predicted_radiance_of_lambert_is_rho_over_pi_times_irradiance():
