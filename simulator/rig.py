@@ -1,0 +1,180 @@
+"""The simulated rig: a virtual Dynamixel bus on a pty and a rendered camera that watches what the servos do.
+
+``SimulatedRig(spec)`` (a context manager) starts the virtual servos, one per joint of the rig geometry,
+and a ``SimulatedCamera`` whose radiance comes from Mitsuba, rendered from the pose the servos *physically*
+hold (present position plus backlash) through the kinematics' world placement. A controller drives it
+exactly like hardware: open ``rig.port`` with a ``DynamixelLink`` (``rig.open_link()`` does so) and take
+frames from ``rig.camera``. Servo errors therefore reach the images the way they would on a real rig.
+
+Time: with ``time_scale=None`` (the default) the bus, the link and the camera share one ``ManualClock``,
+so polls and exposures advance simulated time instantly; a number runs a ``ScaledClock`` that factor
+faster than real time, for external clients. Only one simulated rig runs per process at a time.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from acquisition.noise import SensorNoise
+from model.base import Model
+from model.lambert import Lambert
+from rig.axis import Axis
+from rig.clock import Clock, ManualClock, ScaledClock
+from rig.geometry import RigGeometry
+from rig.kinematics import Joints, world_pose
+from rig.links.dynamixel import DynamixelLink, DynamixelOptions
+from simulator.camera import CameraOptics, SimulatedCamera
+from simulator.dynamixel.bus import VirtualDynamixelBus
+from simulator.materials import MitsubaMaterial, to_mitsuba
+from simulator.render import RadianceRenderer
+from simulator.scene import CameraSpec, LightSpec
+
+XM430_TICKS_PER_DEGREE = 4096 / 360
+_ACTIVE_LOCK = threading.Lock()
+_active: list[SimulatedRig] = []
+
+
+class SimulatedRigError(RuntimeError):
+    """The simulated rig cannot start (one is already running in this process, or the spec is unusable)."""
+
+
+def default_axes(geometry: RigGeometry, first_id: int = 1) -> tuple[Axis, ...]:
+    """One XM430-W350 per joint of the layout, ids from ``first_id``, joint 0 at mid-travel, rig limits."""
+    axes = []
+    for i, name in enumerate(geometry.joint_names):
+        lo, hi = geometry.limits.of(name)
+        axes.append(Axis(name=name, address=first_id + i, units_per_degree=XM430_TICKS_PER_DEGREE,
+                         zero_offset_deg=-180.0, min_deg=lo, max_deg=hi, tolerance_deg=0.2))  # fmt: skip
+    return tuple(axes)
+
+
+@dataclass(frozen=True)
+class SimRigSpec:
+    """Everything the simulated rig is made of.
+
+    Parameters
+    ----------
+    geometry:
+        The rig (layout, arm radii, sample size, limits); the scene is placed from its kinematics.
+    material:
+        The sample's BRDF (any model of the model module).
+    light, camera:
+        The emitter on the light arm (intensity in W/sr) and the camera on the camera arm.
+    noise, optics:
+        The sensor's noise and range, and what turns radiance into counts per second.
+    axes:
+        The joints' servos; ``None`` gives ``default_axes(geometry)``.
+    baudrate:
+        The virtual bus's baud rate.
+    fixed_pattern_dn:
+        RMS of the camera's per-pixel offset in counts.
+    time_scale:
+        ``None`` for simulated time (``ManualClock``), or a factor of real time (``ScaledClock``).
+    seed:
+        Seeds the camera's noise and the servos' random faults.
+    """
+
+    geometry: RigGeometry = field(default_factory=RigGeometry)
+    material: Model = field(default_factory=lambda: Lambert(0.5))
+    light: LightSpec = field(default_factory=lambda: LightSpec(intensity=1.0))
+    camera: CameraSpec = field(default_factory=CameraSpec)
+    noise: SensorNoise = field(default_factory=SensorNoise)
+    optics: CameraOptics = field(default_factory=CameraOptics)
+    axes: tuple[Axis, ...] | None = None
+    baudrate: int = 1_000_000
+    fixed_pattern_dn: float = 0.0
+    time_scale: float | None = None
+    seed: int = 0
+
+    def resolved_axes(self) -> tuple[Axis, ...]:
+        """The axes, defaulted from the geometry, checked to cover every joint of the layout."""
+        axes = self.axes if self.axes is not None else default_axes(self.geometry)
+        names = {a.name for a in axes}
+        missing = [j for j in self.geometry.joint_names if j not in names]
+        if missing:
+            raise SimulatedRigError(f"SimRigSpec.axes lacks joints {missing} of layout {self.geometry.layout!r}")
+        return tuple(axes)
+
+
+class SimulatedRig:
+    """A running simulated rig; see the module docstring."""
+
+    def __init__(self, spec: SimRigSpec | None = None) -> None:
+        self.spec = spec or SimRigSpec()
+        self.axes = self.spec.resolved_axes()
+        self.clock: Clock = ManualClock() if self.spec.time_scale is None else ScaledClock(self.spec.time_scale)
+        self.material: MitsubaMaterial = to_mitsuba(self.spec.material)
+        self.renderer = RadianceRenderer(self.spec.geometry, self.spec.light, self.spec.camera)
+        self.bus: VirtualDynamixelBus | None = None
+        self.camera: SimulatedCamera | None = None
+        self.renders = 0
+
+    def start(self) -> SimulatedRig:
+        """Bring up the virtual bus and the camera; refuses if another simulated rig runs in this process."""
+        with _ACTIVE_LOCK:
+            if _active:
+                raise SimulatedRigError(
+                    f"a simulated rig is already running in this process (bus on {_active[0].port}); "
+                    "close it first"
+                )
+            ids = [int(a.address) for a in self.axes]
+            # Servos start with the joints at 0 deg, the rig's rest pose.
+            positions = {int(a.address): round(a.to_units(min(max(0.0, a.min_deg), a.max_deg))) for a in self.axes}
+            bus = VirtualDynamixelBus(ids, self.spec.baudrate, self.clock, seed=self.spec.seed, positions=positions)
+            bus.start()
+            self.bus = bus
+            self.camera = SimulatedCamera(
+                self._radiance, noise=self.spec.noise, optics=self.spec.optics, clock=self.clock,
+                seed=self.spec.seed, fixed_pattern_dn=self.spec.fixed_pattern_dn,
+                camera_id=f"gonio simulated camera ({self.spec.material.__class__.__name__}, {self.material.plugin})",
+            )  # fmt: skip
+            _active.append(self)
+        return self
+
+    def __enter__(self) -> SimulatedRig:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stop the bus and the camera; safe to call twice."""
+        with _ACTIVE_LOCK:
+            if self.camera is not None:
+                self.camera.close()
+            if self.bus is not None:
+                self.bus.close()
+            if self in _active:
+                _active.remove(self)
+
+    @property
+    def port(self) -> str:
+        """Device path of the virtual bus."""
+        if self.bus is None:
+            raise SimulatedRigError("the simulated rig is not running: use it as a context manager or call start()")
+        return self.bus.port
+
+    def open_link(self, options: DynamixelOptions | None = None, latency_timer_ms: float = 60.0) -> DynamixelLink:
+        """A Dynamixel link to this rig's bus on its clock (the controller side of the simulation)."""
+        return DynamixelLink.open(
+            self.port, self.axes, baudrate=self.spec.baudrate, clock=self.clock, options=options,
+            latency_timer_ms=latency_timer_ms,
+        )  # fmt: skip
+
+    def joints_now(self) -> Joints:
+        """Joint angles in degrees the servos physically hold now (backlash included)."""
+        if self.bus is None:
+            raise SimulatedRigError("the simulated rig is not running")
+        values = {a.name: a.to_degrees(self.bus.servo(int(a.address)).physical_position_ticks()) for a in self.axes}
+        return Joints.from_dict(values)
+
+    def _radiance(self) -> npt.NDArray[np.float64]:
+        pose = world_pose(self.spec.geometry, self.joints_now())
+        crop = self.renderer.roi(pose)
+        self.renders += 1
+        image = self.renderer.render(pose, self.material, crop=crop, key=repr(self.spec.material))
+        return np.asarray(image, dtype=np.float64)
