@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 import os
 import struct
-import tempfile
 from collections.abc import Sequence
 from fractions import Fraction
 from pathlib import Path
@@ -35,6 +34,7 @@ import numpy as np
 import numpy.typing as npt
 import tifffile
 
+from acquisition.atomic import atomic_path
 from acquisition.frame import Frame
 
 PathLike = str | os.PathLike[str]
@@ -199,11 +199,9 @@ def write_dng(
         (_EXIF_PLACEHOLDER, "I", 1, 0, True),
     ]
     target = Path(path)
-    fd, tmp_name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
+    with atomic_path(target) as tmp:
         tifffile.imwrite(
-            tmp_name,
+            tmp,
             mosaic,
             photometric=tifffile.PHOTOMETRIC.CFA,
             compression=None,
@@ -214,12 +212,6 @@ def write_dng(
             software="gonio",
             extratags=tags,
         )
-        with open(tmp_name, "r+b") as fh:
+        with open(tmp, "r+b") as fh:
             _attach_exif(fh, exposure, iso_value)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp_name, target)
-    except BaseException:
-        Path(tmp_name).unlink(missing_ok=True)
-        raise
     return target

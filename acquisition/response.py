@@ -28,7 +28,6 @@ import datetime
 import json
 import math
 import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +37,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from acquisition.atomic import atomic_path
 from acquisition.bracket import check_bracket, describe_frame
 from acquisition.frame import Frame, FrameError
 from acquisition.hdr import HdrFlag, HdrImage
@@ -104,22 +104,13 @@ class ResponseCurve:
             "format": FORMAT, "method": self.method, "camera_id": self.camera_id, "created": self.created,
             "opencv_version": self.opencv_version, "params": self.params, "channels": self.channels,
         }
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                if target.suffix == ".npz":
-                    np.savez(fh, inverse=self.inverse, meta=np.array(json.dumps(meta)))
-                else:
-                    # float32 -> float -> repr round-trips exactly, so a JSON curve loads bit-identical.
-                    meta["inverse"] = [[float(v) for v in row] for row in self.inverse]
-                    fh.write(json.dumps(meta, indent=1).encode())
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, target)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        with atomic_path(target) as tmp, open(tmp, "wb") as fh:
+            if target.suffix == ".npz":
+                np.savez(fh, inverse=self.inverse, meta=np.array(json.dumps(meta)))
+            else:
+                # float32 -> float -> repr round-trips exactly, so a JSON curve loads bit-identical.
+                meta["inverse"] = [[float(v) for v in row] for row in self.inverse]
+                fh.write(json.dumps(meta, indent=1).encode())
         return target
 
     @classmethod
