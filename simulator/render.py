@@ -33,8 +33,10 @@ import numpy.typing as npt
 
 from rig.geometry import RigGeometry
 from rig.kinematics_types import RigPose
+from simulator.camera_view import roi_box
 from simulator.mitsuba_variant import VariantUnavailable, pick_variant, unavailable_reason, use_variant
-from simulator.scene import Box, BSDFLike, CameraSpec, LightSpec, bsdf_dict, build_scene, check_box, roi_box
+from simulator.scene import build_scene
+from simulator.scene_spec import Box, BSDFLike, CameraSpec, LightSpec, bsdf_dict, check_box
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -31,7 +31,7 @@ from simulator.camera import CameraOptics, SimulatedCamera
 from simulator.dynamixel.bus import VirtualDynamixelBus
 from simulator.materials import MitsubaMaterial, to_mitsuba
 from simulator.render import RadianceRenderer
-from simulator.scene import CameraSpec, LightSpec
+from simulator.scene_spec import CameraSpec, LightSpec
 
 XM430_TICKS_PER_DEGREE = 4096 / 360
 _ACTIVE_LOCK = threading.Lock()

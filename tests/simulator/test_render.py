@@ -25,16 +25,10 @@ from rig.geometry import RigGeometry
 from rig.kinematics import RigPose, forward, inverse, require, world_pose
 from simulator import mitsuba_variant as mv
 from simulator import render as render_module
+from simulator.camera_view import camera_view, default_roi, pixel_on_sample
 from simulator.render import RadianceRenderer, render_radiance, roi_mean, roi_radiance
-from simulator.scene import (
-    CameraSpec,
-    LightSpec,
-    build_scene,
-    camera_view,
-    default_roi,
-    pixel_on_sample,
-    sample_to_world,
-)
+from simulator.scene import build_scene, sample_to_world
+from simulator.scene_spec import CameraSpec, LightSpec
 from tests.mitsuba_helpers import ORACLE_VARIANTS, bsdf_eval_cos, require_variant, rgb
 
 pytestmark = pytest.mark.mitsuba
