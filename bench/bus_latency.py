@@ -30,11 +30,13 @@ import dynamixel_sdk as sdk
 from bench._common import format_table, machine_description, markdown_table, timed_calls, write_section
 from rig.axis import Axis
 from rig.clock import ManualClock
+from rig.geometry import RigGeometry
 from rig.links.dynamixel import DynamixelLink, DynamixelOptions
 from rig.links.dynamixel_table import X_SERIES
 from rig.links.grbl import GrblLink
 from simulator.dynamixel import open_virtual_bus
 from simulator.grbl import open_virtual_grbl
+from simulator.rig import default_axes
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 BAUD = 1_000_000
@@ -70,14 +72,6 @@ def timings(fn: Callable[[], object], reps: int) -> tuple[float, float]:
     return statistics.median(samples), samples[int(0.95 * (len(samples) - 1))]
 
 
-def axes() -> list[Axis]:
-    """Four XM430 joints, 0 deg at tick 2048, 60 deg/s and 120 deg/s^2."""
-    return [
-        Axis(name=n, address=i, units_per_degree=4096 / 360, zero_offset_deg=-180.0, min_deg=-150.0, max_deg=150.0)
-        for i, n in zip(IDS, POSE, strict=True)
-    ]
-
-
 def dynamixel_rows(reps: int) -> list[list[str]]:
     """Rows for the Dynamixel measurements."""
     address, size = X_SERIES.motion_block
@@ -101,7 +95,7 @@ def dynamixel_rows(reps: int) -> list[list[str]]:
         rows.append(["SYNC_READ 4 x 14 B, raw dynamixel_sdk", f"{med * 1e3:.3f}", f"{p95 * 1e3:.3f}",
                      f"{read_wire * 1e3:.3f}", f"{med / read_wire:.2f}", "1"])  # fmt: skip
 
-        link = DynamixelLink.open(vbus.port, axes(), clock=clock, latency_timer_ms=60.0,
+        link = DynamixelLink.open(vbus.port, default_axes(RigGeometry()), clock=clock, latency_timer_ms=60.0,
                                   options=DynamixelOptions(poll_interval_s=0.01))  # fmt: skip
         try:
             med, p95 = timings(lambda: link.bus.sync_read(address, size, list(IDS)), reps)

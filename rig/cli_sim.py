@@ -10,8 +10,7 @@ import argparse
 import sys
 
 from rig.clock import ScaledClock
-
-SDK_BAUDRATES = (57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
+from rig.links.dynamixel_bus import SDK_BAUDRATES
 
 
 def _ids(text: str) -> tuple[int, ...]:
@@ -96,7 +95,8 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     )
     servos.add_argument("--ids", type=_ids, default=(1, 2, 3, 4), help="servo ids, e.g. 1,2,3 or 1-4 (default 1-4)")
     servos.add_argument(
-        "--baud", type=int, choices=SDK_BAUDRATES, default=1_000_000, help="servos' baud rate (default 1000000)"
+        "--baud", type=int, choices=SDK_BAUDRATES, default=1_000_000, metavar="BAUD",
+        help="servos' baud rate, one dynamixel_sdk accepts (default 1000000)",
     )
     servos.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
     servos.add_argument(

@@ -27,13 +27,13 @@ from rig.clock import Clock, ManualClock, ScaledClock
 from rig.geometry import RigGeometry
 from rig.kinematics import Joints, world_pose
 from rig.links.dynamixel import DynamixelLink, DynamixelOptions
+from rig.links.dynamixel_table import X_SERIES
 from simulator.camera import CameraOptics, SimulatedCamera
 from simulator.dynamixel.bus import VirtualDynamixelBus
 from simulator.materials import MitsubaMaterial, to_mitsuba
 from simulator.render import RadianceRenderer
 from simulator.scene_spec import CameraSpec, LightSpec
 
-XM430_TICKS_PER_DEGREE = 4096 / 360
 _ACTIVE_LOCK = threading.Lock()
 _active: list[SimulatedRig] = []
 
@@ -47,7 +47,7 @@ def default_axes(geometry: RigGeometry, first_id: int = 1) -> tuple[Axis, ...]:
     axes = []
     for i, name in enumerate(geometry.joint_names):
         lo, hi = geometry.limits.of(name)
-        axes.append(Axis(name=name, address=first_id + i, units_per_degree=XM430_TICKS_PER_DEGREE,
+        axes.append(Axis(name=name, address=first_id + i, units_per_degree=X_SERIES.ticks_per_degree,
                          zero_offset_deg=-180.0, min_deg=lo, max_deg=hi, tolerance_deg=0.2))  # fmt: skip
     return tuple(axes)
 

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from rig.axis import Axis
-from rig.clock import Clock, SystemClock
+from rig.clock import Clock, SystemClock, poll_until
 from rig.links.base import LinkError, MoveTimeout, Pose
 from rig.links.dynamixel_bus import CommunicationError, DynamixelBus, Reading
 from rig.links.dynamixel_table import ControlTable, describe_hardware_error, model_name, table_for_model
@@ -283,11 +283,11 @@ class DynamixelLink:
         sid = self._id(name)
         self.bus.reboot(sid)
         # A real servo takes a moment to boot; poll its ping instead of guessing how long.
-        deadline = self.clock.now() + 2.0
-        while self.bus.try_ping(sid) is None:
-            if self.clock.now() >= deadline:
-                raise LinkError(f"axis {name!r} (servo {sid}) did not come back within 2 s of REBOOT")
-            self.clock.sleep(self.options.poll_interval_s)
+        try:
+            poll_until(lambda: self.bus.try_ping(sid) is not None, 2.0, self.options.poll_interval_s, self.clock,
+                       f"axis {name!r} (servo {sid}) answering after REBOOT")  # fmt: skip
+        except TimeoutError as exc:
+            raise LinkError(f"axis {name!r} (servo {sid}) did not come back within 2 s of REBOOT") from exc
         self._configure_servo(name)
         self.reboots += 1
         if name in self.targets_deg:
