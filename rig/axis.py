@@ -95,14 +95,6 @@ class Axis:
         """Joint angle in degrees for a device position in ticks or steps."""
         return self.zero_offset_deg + self.direction * units / self.units_per_joint_degree
 
-    def speed_units(self) -> float:
-        """Maximum speed in device units per second."""
-        return self.max_speed_deg_s * self.units_per_joint_degree
-
-    def accel_units(self) -> float:
-        """Maximum acceleration in device units per second squared."""
-        return self.max_accel_deg_s2 * self.units_per_joint_degree
-
     def in_position(self, actual_deg: float, target_deg: float) -> bool:
         """Whether ``actual_deg`` is within the in-position tolerance of ``target_deg`` (degrees)."""
         return abs(actual_deg - target_deg) <= self.tolerance_deg

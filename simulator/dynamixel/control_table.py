@@ -168,7 +168,6 @@ TABLE_SIZE = FIELDS[-1].end
 """Bytes in the modelled table; reading or writing past it is an Access Error."""
 
 FIELD_BY_NAME: dict[str, Field] = {f.name: f for f in FIELDS}
-_FIELD_AT: dict[int, Field] = {a: f for f in FIELDS for a in range(f.address, f.end)}
 
 
 def field(name: str) -> Field:
@@ -177,11 +176,6 @@ def field(name: str) -> Field:
         return FIELD_BY_NAME[name]
     except KeyError:
         raise KeyError(f"no control table item {name!r}; known: {', '.join(FIELD_BY_NAME)}") from None
-
-
-def field_at(address: int) -> Field | None:
-    """The item covering ``address``, or None for an unused address."""
-    return _FIELD_AT.get(address)
 
 
 def fields_touched(address: int, length: int) -> Iterator[tuple[Field, bool]]:
