@@ -30,13 +30,13 @@ import dynamixel_sdk as sdk
 from bench._common import format_table, machine_description, markdown_table, timed_calls, write_section
 from rig.axis import Axis
 from rig.clock import ManualClock
+from rig.config import default_axes
 from rig.geometry import RigGeometry
 from rig.links.dynamixel import DynamixelLink, DynamixelOptions
 from rig.links.dynamixel_table import X_SERIES
 from rig.links.grbl import GrblLink
 from simulator.dynamixel import open_virtual_bus
 from simulator.grbl import open_virtual_grbl
-from simulator.rig import default_axes
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 BAUD = 1_000_000

@@ -14,9 +14,10 @@ path a real camera's files take.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -88,6 +89,11 @@ class SimulatedCamera:
     ``fixed_pattern_dn`` is the RMS of a per-pixel offset drawn once from ``seed`` (dark signal
     non-uniformity); dark frames carry it, so subtracting them removes it. ``min_exposure_s`` and
     ``max_exposure_s`` bound what ``set_exposure`` applies, like a real camera's shutter range.
+
+    ``state_key`` (optional) names the scene's state (the simulated rig gives the servos' physical
+    positions and the material in view). With it, each frame's noise is drawn from the seed, that state
+    and the frame's number since the state last changed, instead of from one stream for the camera's
+    life: a run resumed after a crash then sees exactly the noise an uninterrupted run saw.
     """
 
     def __init__(
@@ -106,6 +112,7 @@ class SimulatedCamera:
         seed: int = 0,
         dng_dir: Path | None = None,
         camera_id: str = "gonio simulated camera",
+        state_key: Callable[[], Hashable] | None = None,
     ) -> None:
         if not 0 < min_exposure_s < max_exposure_s:
             raise ValueError(
@@ -126,7 +133,12 @@ class SimulatedCamera:
         self.max_exposure_s = max_exposure_s
         self.clock: Clock = clock or ManualClock()
         self.dng_dir = Path(dng_dir) if dng_dir is not None else None
+        if state_key is not None and not isinstance(seed, int):
+            raise ValueError(f"state_key needs an int seed (it derives one stream per state), got {seed!r}")
         self._rng = as_generator(seed)
+        self._seed = seed
+        self._state_key = state_key
+        self._state: tuple[str, int] | None = None
         self._fpn_seed = seed + 7919  # the offset map must not depend on how many frames came before
         self._fpn: dict[tuple[int, ...], npt.NDArray[np.float32]] = {}
         self._settings = ExposureSettings(exposure_s=min(max(0.01, min_exposure_s), max_exposure_s), gain=1.0)
@@ -181,17 +193,27 @@ class SimulatedCamera:
             self._fpn[shape] = (gen.standard_normal(shape) * self.fixed_pattern_dn).astype(np.float32)
         return self._fpn[shape]
 
+    def _generator(self, dark: bool) -> np.random.Generator:
+        if self._state_key is None:
+            return self._rng
+        # Python's hash() is salted per process; a resumed run needs the same stream in a new process.
+        digest = hashlib.blake2b(repr((self._state_key(), dark)).encode(), digest_size=8).hexdigest()
+        n = self._state[1] + 1 if self._state is not None and self._state[0] == digest else 0
+        self._state = (digest, n)
+        return np.random.default_rng([self._seed, int(digest, 16), n])
+
     def _expose(self, rate: npt.NDArray[np.float64], *, dark: bool) -> Frame:
         t, g = self._settings.exposure_s, self._settings.gain
+        rng = self._generator(dark)
         start = self.clock.now()
         pattern = self.cfa_pattern if self.kind == "raw" else None
         shape = rate.shape[:2] if self.kind == "raw" else rate.shape
         offsets = self._offsets(tuple(shape))
         if dark:
-            frame = dark_frame(tuple(shape), self.noise, t, self._rng, gain=g, kind=self.kind, cfa_pattern=pattern,
+            frame = dark_frame(tuple(shape), self.noise, t, rng, gain=g, kind=self.kind, cfa_pattern=pattern,
                                camera_id=self.identity, timestamp_s=start, offset_dn=offsets)  # fmt: skip
         else:
-            frame = capture(rate, self.noise, t, self._rng, gain=g, kind=self.kind, cfa_pattern=pattern,
+            frame = capture(rate, self.noise, t, rng, gain=g, kind=self.kind, cfa_pattern=pattern,
                             tone_curve=self.tone_curve, camera_id=self.identity, timestamp_s=start,
                             offset_dn=offsets)  # fmt: skip
         self.clock.sleep(t)

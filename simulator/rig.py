@@ -24,10 +24,10 @@ from model.base import Model
 from model.lambert import Lambert
 from rig.axis import Axis
 from rig.clock import Clock, ManualClock, ScaledClock
+from rig.config import default_axes
 from rig.geometry import RigGeometry
 from rig.kinematics import Joints, world_pose
 from rig.links.dynamixel import DynamixelLink, DynamixelOptions
-from rig.links.dynamixel_table import X_SERIES
 from simulator.camera import CameraOptics, SimulatedCamera
 from simulator.dynamixel.bus import VirtualDynamixelBus
 from simulator.materials import MitsubaMaterial, to_mitsuba
@@ -40,16 +40,6 @@ _active: list[SimulatedRig] = []
 
 class SimulatedRigError(RuntimeError):
     """The simulated rig cannot start (one is already running in this process, or the spec is unusable)."""
-
-
-def default_axes(geometry: RigGeometry, first_id: int = 1) -> tuple[Axis, ...]:
-    """One XM430-W350 per joint of the layout, ids from ``first_id``, joint 0 at mid-travel, rig limits."""
-    axes = []
-    for i, name in enumerate(geometry.joint_names):
-        lo, hi = geometry.limits.of(name)
-        axes.append(Axis(name=name, address=first_id + i, units_per_degree=X_SERIES.ticks_per_degree,
-                         zero_offset_deg=-180.0, min_deg=lo, max_deg=hi, tolerance_deg=0.2))  # fmt: skip
-    return tuple(axes)
 
 
 @dataclass(frozen=True)
@@ -75,7 +65,13 @@ class SimRigSpec:
     time_scale:
         ``None`` for simulated time (``ManualClock``), or a factor of real time (``ScaledClock``).
     seed:
-        Seeds the camera's noise and the servos' random faults.
+        Seeds the camera's noise and the servos' random faults. The noise of each frame is drawn from the
+        seed, the servos' physical positions and the material in view, so it does not depend on what the
+        rig did before (a resumed run sees what an uninterrupted one saw).
+    reference_albedo:
+        Albedo of the Lambertian reference tile that ``rig.reference`` swaps in for the sample.
+    light_drift_per_s:
+        Relative change of the light's intensity per second of rig time (0: a stable lamp), for drift tests.
     """
 
     geometry: RigGeometry = field(default_factory=RigGeometry)
@@ -89,6 +85,8 @@ class SimRigSpec:
     fixed_pattern_dn: float = 0.0
     time_scale: float | None = None
     seed: int = 0
+    reference_albedo: float | tuple[float, float, float] = 0.99
+    light_drift_per_s: float = 0.0
 
     def resolved_axes(self) -> tuple[Axis, ...]:
         """The axes, defaulted from the geometry, checked to cover every joint of the layout."""
@@ -112,6 +110,10 @@ class SimulatedRig:
         self.bus: VirtualDynamixelBus | None = None
         self.camera: SimulatedCamera | None = None
         self.renders = 0
+        self.reference = SimulatedReference(self)
+        self._showing: Model = self.spec.material
+        self._shown: MitsubaMaterial = self.material
+        self._reference_material = to_mitsuba(Lambert(self.spec.reference_albedo))
 
     def start(self) -> SimulatedRig:
         """Bring up the virtual bus and the camera; refuses if another simulated rig runs in this process."""
@@ -129,7 +131,7 @@ class SimulatedRig:
             self.bus = bus
             self.camera = SimulatedCamera(
                 self._radiance, noise=self.spec.noise, optics=self.spec.optics, clock=self.clock,
-                seed=self.spec.seed, fixed_pattern_dn=self.spec.fixed_pattern_dn,
+                seed=self.spec.seed, fixed_pattern_dn=self.spec.fixed_pattern_dn, state_key=self._state_key,
                 camera_id=f"gonio simulated camera ({self.spec.material.__class__.__name__}, {self.material.plugin})",
             )  # fmt: skip
             _active.append(self)
@@ -172,9 +174,47 @@ class SimulatedRig:
         values = {a.name: a.to_degrees(self.bus.servo(int(a.address)).physical_position_ticks()) for a in self.axes}
         return Joints.from_dict(values)
 
-    def _radiance(self) -> npt.NDArray[np.float64]:
+    def show(self, reference: bool) -> None:
+        """Put the reference tile (True) or the sample (False) in view of the camera."""
+        if reference:
+            self._showing, self._shown = Lambert(self.spec.reference_albedo), self._reference_material
+        else:
+            self._showing, self._shown = self.spec.material, self.material
+
+    def _state_key(self) -> tuple[object, ...]:
+        assert self.bus is not None
+        ticks = tuple(round(self.bus.servo(int(a.address)).physical_position_ticks(), 3) for a in self.axes)
+        return (ticks, repr(self._showing))
+
+    def radiance_now(self, full_frame: bool = False) -> npt.NDArray[np.float64]:
+        """Radiance (W/(m^2 sr)) the camera sees now (the ROI, or the whole frame), from the servos' physical pose."""
+        return self._radiance(full_frame)
+
+    def _radiance(self, full_frame: bool = False) -> npt.NDArray[np.float64]:
         pose = world_pose(self.spec.geometry, self.joints_now())
-        crop = self.renderer.roi(pose)
+        crop = None if full_frame else self.renderer.roi(pose)
         self.renders += 1
-        image = self.renderer.render(pose, self.material, crop=crop, key=repr(self.spec.material))
+        image = self.renderer.render(pose, self._shown, crop=crop, key=repr(self._showing))
+        if self.spec.light_drift_per_s:
+            return np.asarray(image, dtype=np.float64) * (1.0 + self.spec.light_drift_per_s * self.clock.now())
         return np.asarray(image, dtype=np.float64)
+
+
+class SimulatedReference:
+    """The simulated rig's flip-in reference tile: swaps the rendered material; satisfies ReferenceTarget."""
+
+    def __init__(self, rig: SimulatedRig) -> None:
+        self._rig = rig
+
+    @property
+    def description(self) -> str:
+        """The tile and its albedo."""
+        return f"simulated Lambertian tile, albedo {self._rig.spec.reference_albedo!r}"
+
+    def present(self) -> None:
+        """Swap the reference tile in."""
+        self._rig.show(True)
+
+    def withdraw(self) -> None:
+        """Swap the sample back in."""
+        self._rig.show(False)

@@ -1,0 +1,35 @@
+"""The simulated rig described by a rig file: its geometry, axes, camera, reference tile and material."""
+
+from __future__ import annotations
+
+from acquisition.noise import SensorNoise
+from rig.config import ConfigError, RigConfig, material_from
+from simulator.rig import SimRigSpec
+from simulator.scene_spec import CameraSpec, LightSpec
+
+
+def spec_from(rig: RigConfig) -> SimRigSpec:
+    """A SimRigSpec from a validated rig file (link kind 'simulated')."""
+    f = rig.file
+    if f.link.kind != "simulated":
+        raise ConfigError(f"{rig.path}: link.kind = {f.link.kind!r}: the simulated rig needs 'simulated'")
+    cam = f.camera
+    try:
+        noise = SensorNoise(**cam.noise.model_dump())
+    except ValueError as exc:
+        raise ConfigError(f"{rig.path}: camera.noise: {exc}") from None
+    sim = f.simulation
+    albedo = f.reference.albedo
+    return SimRigSpec(
+        geometry=rig.geometry,
+        material=material_from(rig),
+        light=LightSpec(kind=sim.light_kind, intensity=sim.light_intensity_w_sr),
+        camera=CameraSpec(resolution=cam.resolution, roi=cam.roi, spp=cam.spp, variant=cam.variant),
+        noise=noise,
+        axes=rig.axes,
+        baudrate=f.link.baudrate,
+        fixed_pattern_dn=sim.fixed_pattern_dn,
+        time_scale=sim.time_scale,
+        seed=sim.seed,
+        reference_albedo=albedo if isinstance(albedo, float) else (albedo[0], albedo[1], albedo[2]),
+    )
