@@ -302,8 +302,12 @@ class DynamixelLink:
         clamped = {n: min(max(p, self.axes[n].min_deg), self.axes[n].max_deg) for n, p in here.items()}
         self.move_to(clamped)
 
-    def shutdown(self) -> None:
-        """Stop, switch torque off on every servo (each write confirmed) and close the port; idempotent."""
+    def shutdown(self, keep_torque: bool = False) -> None:
+        """Stop, switch torque off on every servo (each write confirmed) and close the port; idempotent.
+
+        ``keep_torque=True`` leaves the servos holding their position (arms that would fall or swing
+        unpowered); the port is closed all the same.
+        """
         if self._closed:
             return
         failures: list[str] = []
@@ -313,7 +317,7 @@ class DynamixelLink:
         except LinkError as exc:
             failures.append(f"stop: {exc}")
         # Torque off one servo at a time with a status reply, so "safe" is confirmed rather than assumed.
-        for name, table in self._tables.items():
+        for name, table in self._tables.items() if not keep_torque else ():
             try:
                 self.bus.write(self._id(name), table.torque_enable, 1, 0)
             except LinkError as exc:
