@@ -6,13 +6,14 @@ import argparse
 import sys
 from pathlib import Path
 
+from rig.cli_run import EXIT_BAD_INPUT, EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_OK, add_run_parsers
+from rig.cli_servo import add_servo_parser
 from rig.cli_sim import add_sim_parser
+from rig.links.base import LinkError
+from rig.store import RunStoreError
 
-EXIT_OK = 0
-EXIT_BAD_INPUT = 2
 
-
-def _demo(args: argparse.Namespace) -> int:
+def _models(args: argparse.Namespace) -> int:
     from rig.demo import check_table, write_slices
 
     png, table = write_slices(Path(args.out))
@@ -27,18 +28,21 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="gonio",
         description="Drive, simulate and analyse a gonioreflectometer.",
-        epilog="Example: gonio demo --out out/demo",
+        epilog="Example: gonio demo --out out/demo. Exit codes: 0 ok, 2 bad input, 3 hardware fault, "
+        "4 camera fault, 130 interrupted.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    demo = sub.add_parser(
-        "demo",
+    add_run_parsers(sub)
+    models = sub.add_parser(
+        "models",
         help="plot in-plane BRDF slices of a few materials and check their physics",
         description="Writes brdf_slices.png and brdf_slices.csv (f_r in 1/sr) and prints each "
         "material's reciprocity, energy and finiteness checks.",
-        epilog="Example: gonio demo --out out/demo",
+        epilog="Example: gonio models --out out/models",
     )
-    demo.add_argument("--out", default="out/demo", help="output directory (default: out/demo)")
-    demo.set_defaults(func=_demo)
+    models.add_argument("--out", default="out/models", help="output directory (default: out/models)")
+    models.set_defaults(func=_models)
+    add_servo_parser(sub)
     add_sim_parser(sub)
     return parser
 
@@ -51,8 +55,11 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args))
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
-        return 130
-    except (ValueError, OSError) as exc:
+        return EXIT_INTERRUPTED
+    except LinkError as exc:
+        print(f"gonio: hardware fault: {exc}", file=sys.stderr)
+        return EXIT_HARDWARE
+    except (ValueError, OSError, RunStoreError) as exc:
         print(f"gonio: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
 

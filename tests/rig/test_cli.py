@@ -1,14 +1,15 @@
 import csv
 
 import numpy as np
+import pytest
 
 import model as m
 from rig import cli
 from rig.demo import in_plane_slice
 
 
-def test_demo_writes_figure_and_table(tmp_path, capsys):
-    assert cli.main(["demo", "--out", str(tmp_path)]) == 0
+def test_models_writes_figure_and_table(tmp_path, capsys):
+    assert cli.main(["models", "--out", str(tmp_path)]) == 0
     png = tmp_path / "brdf_slices.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with open(tmp_path / "brdf_slices.csv") as fh:
@@ -26,12 +27,16 @@ def test_slice_peaks_at_the_mirror_direction():
     assert theta_o[np.argmax(f[:, 0])] == -40.0
 
 
-def test_help_has_examples(capsys):
-    try:
-        cli.main(["demo", "--help"])
-    except SystemExit as exc:
-        assert exc.code == 0
-    assert "Example: gonio demo" in capsys.readouterr().out
+COMMANDS = [["demo"], ["models"], ["run"], ["plan"], ["resume"], ["servo", "scan"], ["servo", "ping"],
+            ["servo", "status"], ["servo", "move"], ["sim", "servos"], ["sim", "grbl"], ["sim", "rig"]]  # fmt: skip
+
+
+@pytest.mark.parametrize("command", COMMANDS, ids=" ".join)
+def test_every_command_explains_itself_with_an_example(command, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main([*command, "--help"])
+    assert exc.value.code == 0
+    assert f"Example: gonio {' '.join(command)}" in capsys.readouterr().out
 
 
 def test_unknown_command_is_bad_input(capsys):
@@ -40,3 +45,34 @@ def test_unknown_command_is_bad_input(capsys):
     except SystemExit as exc:
         assert exc.code == 2
     assert "invalid choice" in capsys.readouterr().err
+
+
+EXAMPLES = __import__("pathlib").Path(__file__).resolve().parents[2] / "examples"
+
+
+def test_plan_lists_unreachable_points_and_an_estimate_without_moving(capsys):
+    sweep, rig = EXAMPLES / "sweep_in_plane.toml", EXAMPLES / "rig_simulated.toml"
+    assert cli.main(["plan", str(sweep), "--rig", str(rig), "--list"]) == 0
+    out = capsys.readouterr().out
+    assert "32 to measure, 1 unreachable" in out and "min_separation" in out
+    assert "Estimated run time" in out
+    assert len([line for line in out.splitlines() if "->" in line]) == 32
+
+
+def test_a_bad_sweep_file_is_bad_input(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[sweep]\nkind = 'grid'\n")
+    assert cli.main(["plan", str(bad)]) == 2
+    assert f"{bad}: [sweep] a 'grid' sweep needs theta_i_deg" in capsys.readouterr().err
+
+
+@pytest.mark.mitsuba
+def test_demo_measures_gold_on_the_simulated_rig(tmp_path, capsys):
+    assert cli.main(["demo", "--out", str(tmp_path), "--points", "5", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert (tmp_path / "demo.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with open(tmp_path / "run" / "samples.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) >= 8
+    median = float(out.split("median |measured/model - 1| = ")[1].split("%")[0]) / 100
+    assert median < 0.03

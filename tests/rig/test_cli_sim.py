@@ -10,6 +10,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+import numpy as np
 import pytest
 import serial
 
@@ -77,3 +78,44 @@ def test_sim_bad_arguments(args: list[str], message: str) -> None:
     result = subprocess.run([sys.executable, "-m", "rig.cli", "sim", *args], capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
     assert message in result.stderr
+
+
+@pytest.mark.mitsuba
+def test_sim_rig_serves_servos_and_writes_frames_of_the_pose_they_hold(tmp_path) -> None:
+    from acquisition.raw import read_raw
+    from rig.clock import SystemClock
+    from rig.config import default_axes
+    from rig.geometry import RigGeometry
+    from rig.kinematics import inverse, require
+    from rig.links.dynamixel import DynamixelLink
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rig.cli", "sim", "rig", "--frames", str(tmp_path), "--speed", "20"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        port = _first_line(proc, timeout_s=60.0)
+        axes = default_axes(RigGeometry())
+        with DynamixelLink.open(port, axes, clock=SystemClock(), latency_timer_ms=60.0) as link:
+            target = require(inverse(RigGeometry(), 30.0, 0.0, 20.0, 180.0))
+            link.move_to({k: float(v) for k, v in target.as_dict().items()})
+            held = link.wait_in_position(timeout_s=60.0)
+            assert abs(held["light"] - float(target.light)) < 0.2
+            assert proc.stdin is not None
+            frames = []
+            for _ in range(2):
+                proc.stdin.write("capture 0.02\n")
+                proc.stdin.flush()
+                frames.append(read_raw(_first_line(proc, timeout_s=60.0)))
+        assert frames[0].exposure_s == pytest.approx(0.02)
+        black = max(np.atleast_1d(frames[0].black_level))
+        assert float(frames[0].data.mean()) > black + 10  # lit: the sample is in view at this pose
+        proc.stdin.write("focus now\n")
+        proc.stdin.flush()
+        assert "expected 'capture SECONDS'" in _first_line(proc, timeout_s=10.0)
+        proc.stdin.close()
+        assert proc.wait(timeout=30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(timeout=10)
