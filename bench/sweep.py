@@ -1,0 +1,149 @@
+"""A 200-point sweep on the simulated rig: rig time against its kinematic lower bound, and controller overhead.
+
+1. Rig time (the simulated clock at the end of the run) against the lower bound for the same ordered
+   plan: each move's time with all axes in parallel under the speed and acceleration the servos are
+   programmed with (the axes' limits rounded to register units; ``rig.plan.move_time_s``, the anchor)
+   plus every exposure. Goal: within 10 %. The excess is the
+   in-position polling (a move is seen to end at the next poll) and the servos' tolerance band.
+2. The controller's own wall time per point, excluding motion and exposure: wall time of the run minus
+   the time spent inside the link (pty round trips; motion itself costs no wall time on simulated time)
+   and inside the camera (the Mitsuba render and the sensor model stand in for the exposure), after a
+   short warm-up run (JIT-compiled kernels load once per process). What is
+   left is planning the exposure, the HDR merge, the ROI reduction, forward kinematics and the fsynced
+   journal write. Goal: under 5 ms.
+
+Run: ``.venv/bin/python -m bench.sweep [--points N] [--no-write]``; prints the tables and writes the
+``sweep`` section of docs/benchmarks.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import itertools
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench._common import format_table, machine_description, markdown_table, write_section
+from rig.config import parse, rig_config, sweep_config
+from rig.config_schema import RigFile, SweepFile
+from rig.links.dynamixel_table import X_SERIES
+from rig.plan import move_time_s
+from rig.runner import Runner, RunOptions
+from rig.session import capture_settings, dynamixel_options, make_plan, manifest
+from rig.store import RunStore
+
+DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
+
+
+class Timed:
+    """Wraps an object and adds the wall time of every method call to ``seconds``."""
+
+    def __init__(self, inner: Any) -> None:
+        self._inner = inner
+        self.seconds = 0.0
+
+    def __getattr__(self, name: str) -> Any:
+        attr = getattr(self._inner, name)
+        if not callable(attr):
+            return attr
+
+        def call(*args: Any, **kwargs: Any) -> Any:
+            t0 = time.perf_counter()
+            try:
+                return attr(*args, **kwargs)
+            finally:
+                self.seconds += time.perf_counter() - t0
+
+        return call
+
+
+def _sweep(points: int) -> Any:
+    """An isotropic grid of about ``points`` directions, most of them reachable."""
+    n_to = max(2, round(points / 20))
+    doc = {
+        "sweep": {"kind": "grid", "theta_i_deg": [10.0, 25.0, 40.0, 55.0, 70.0],
+                  "theta_o_deg": [float(v) for v in np.linspace(5.0, 75.0, n_to)],
+                  "phi_o_deg": [100.0, 140.0, 180.0, 220.0], "isotropic": False},
+        "capture": {"exposures_s": [0.005, 0.02], "dark_frames": 0},
+    }  # fmt: skip
+    return sweep_config(parse(doc, SweepFile, "<bench sweep>"), "<bench sweep>")
+
+
+def run(points: int) -> dict[str, float]:
+    """Run the sweep once on the simulated rig; the figures in seconds."""
+    from simulator.from_config import spec_from
+    from simulator.rig import SimulatedRig
+
+    rig = rig_config(parse({"reference": {"kind": "none"}, "camera": {"spp": 1}}, RigFile, "<bench rig>"), "<bench>")
+    sweep = _sweep(points)
+    plan = make_plan(rig, sweep)
+    options = RunOptions(progress=False)
+    exposures = sum(sweep.file.capture.exposures_s or ())
+    path = [plan.start, *(p.joints for p in plan.points)]
+    # The servos run the profile their registers hold: the axes' limits rounded to register units.
+    table = X_SERIES
+    servo_axes = [replace(a, max_speed_deg_s=table.velocity_units(a.max_speed_deg_s) * table.velocity_unit_rpm * 6.0,
+                          max_accel_deg_s2=table.accel_units(a.max_accel_deg_s2) * table.accel_unit_rpm2 / 10.0)
+                  for a in rig.axes]  # fmt: skip
+    motion = sum(move_time_s(a, b, servo_axes) for a, b in itertools.pairwise(path))
+    with tempfile.TemporaryDirectory() as tmp, SimulatedRig(spec_from(rig)) as sim:
+        assert sim.camera is not None
+        store = RunStore.create(Path(tmp) / "run", manifest(rig, sweep, plan, options))
+        link, camera = Timed(sim.open_link(dynamixel_options(rig))), Timed(sim.camera)
+        runner = Runner(plan, store, link, camera, sim.clock, rig.geometry, capture_settings(rig, sweep),
+                        options=options)  # fmt: skip
+        t0 = time.perf_counter()
+        runner.run()
+        wall = time.perf_counter() - t0
+        store.close()
+        rig_time = sim.clock.now()
+    n = len(plan.points)
+    return {
+        "points": n, "unreachable": len(plan.skipped), "rig_time_s": rig_time, "motion_bound_s": motion,
+        "exposure_s": exposures * n, "wall_s": wall, "link_s": link.seconds, "camera_s": camera.seconds,
+    }  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Run the benchmark and print (and by default record) its figures."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    parser.add_argument("--points", type=int, default=200, help="sweep size (default 200)")
+    parser.add_argument("--no-write", action="store_true", help="do not update docs/benchmarks.md")
+    args = parser.parse_args(argv)
+    machine = machine_description()
+    print(machine)
+    run(8)  # load the JIT-compiled kernels and Mitsuba once, as a long run does at its first point
+    r = run(args.points)
+    n = int(r["points"])
+    bound = r["motion_bound_s"] + r["exposure_s"]
+    overhead_ms = (r["wall_s"] - r["link_s"] - r["camera_s"]) / n * 1e3
+    rows1 = [[f"{n} ({int(r['unreachable'])} unreachable)", f"{r['motion_bound_s']:.1f}", f"{r['exposure_s']:.1f}",
+              f"{bound:.1f}", f"{r['rig_time_s']:.1f}", f"{r['rig_time_s'] / bound:.3f}"]]  # fmt: skip
+    head1 = ["points", "motion bound (s)", "exposures (s)", "lower bound (s)", "rig time (s)", "ratio (goal <= 1.10)"]
+    rows2 = [[f"{r['wall_s'] / n * 1e3:.1f}", f"{r['link_s'] / n * 1e3:.1f}", f"{r['camera_s'] / n * 1e3:.1f}",
+              f"{overhead_ms:.2f}", f"{overhead_ms / 5.0:.2f}"]]  # fmt: skip
+    head2 = ["wall / point (ms)", "link (ms)", "camera (ms)", "controller (ms)", "ratio to 5 ms goal"]
+    print(format_table(head1, rows1))
+    print(format_table(head2, rows2))
+    if args.no_write:
+        return
+    body = "\n".join([
+        f"Measured {datetime.date.today()} on {machine}; `.venv/bin/python -m bench.sweep --points {args.points}`.",
+        "", "Simulated rig time of the sweep against the lower bound for the same ordered plan (every move at the "
+        "axes' speed and acceleration limits, axes in parallel, plus every exposure):", "",
+        markdown_table(head1, rows1), "",
+        "Wall time per point, split into the link (pty round trips), the camera (render and sensor model, "
+        "standing in for the exposure) and the controller's own work (exposure plan, merge, ROI, kinematics, "
+        "fsynced journal):", "", markdown_table(head2, rows2),
+    ])  # fmt: skip
+    write_section(DOCS, "sweep", body)
+
+
+if __name__ == "__main__":
+    main()
