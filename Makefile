@@ -28,6 +28,8 @@ bench: $(STAMP)
 	$(BIN)/python -m bench.hdr
 	$(BIN)/python -m bench.exposure_plan
 	$(BIN)/python -m bench.bus_latency
+	$(BIN)/python -m bench.simulator
+	$(BIN)/python -m bench.sweep
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
