@@ -62,11 +62,6 @@ class ReferenceSettings:
     every: int = 50
     drift_sigma: float = 4.0
 
-    def slots(self, n_points: int) -> list[int]:
-        """Positions (in run order) before which a reference is read; ``n_points`` means after the last."""
-        step = self.every if self.every > 0 else max(n_points, 1)
-        return sorted({*range(0, n_points, step), n_points})
-
 
 @dataclass(frozen=True)
 class RunOptions:
@@ -127,7 +122,8 @@ class Runner:
         ref_done = {r["slot"]: r for r in records if r["kind"] == "reference"}
         points = [r for r in records if r["kind"] == "point"]
         level = Level.from_dict(max(points, key=lambda r: r["position"])["level"]) if points else None
-        slots = set(self.reference.slots(len(self.plan.points))) if self.reference else set()
+        # The plan holds the reference schedule, so its time estimate and the run agree on it.
+        slots = set(self.plan.reference_before) if self.reference else set()
         last_ref = max(ref_done.values(), key=lambda r: r["slot"]) if ref_done else None
         bar = tqdm(total=len(self.plan.points), initial=len(done), unit="pt", disable=not self.options.progress,
                    file=sys.stderr, dynamic_ncols=True)  # fmt: skip
