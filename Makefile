@@ -30,6 +30,7 @@ bench: $(STAMP)
 	$(BIN)/python -m bench.bus_latency
 	$(BIN)/python -m bench.simulator
 	$(BIN)/python -m bench.sweep
+	$(BIN)/python -m bench.fit
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
