@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 import tomllib
+import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +21,7 @@ from pydantic import BaseModel, ValidationError
 import model
 from model.base import Model
 from rig.axis import Axis
-from rig.config_schema import AxisTable, RigFile, SweepFile
+from rig.config_schema import RigFile, SweepFile
 from rig.geometry import GeometryError, JointLimits, RigGeometry
 from rig.links.dynamixel_table import X_SERIES
 
@@ -54,17 +55,17 @@ def _plain(value: Any) -> Any:
 def _allowed_keys(model: type[BaseModel], loc: tuple[int | str, ...]) -> list[str]:
     """The keys the table at ``loc`` accepts (for an unknown-key message)."""
     current: Any = model
-    for part in loc[:-1]:
-        if isinstance(part, int) or current is None:
-            continue
-        info = getattr(current, "model_fields", {}).get(part)
-        if info is None:
-            # A dict table such as [axes.<joint>]: the joint name is free, its value is the model.
-            current = AxisTable if part != "axes" and current is RigFile else current
-            continue
-        ann = info.annotation
-        current = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else AxisTable if part == "axes" else None
-    return sorted(getattr(current, "model_fields", {})) if current is not None else []
+    parts = list(loc[:-1])
+    while parts and current is not None:
+        part = parts.pop(0)
+        info = current.model_fields.get(part) if isinstance(part, str) else None
+        ann = info.annotation if info is not None else None
+        if typing.get_origin(ann) is dict:
+            # A table of named tables such as [axes.<joint>]: skip the free name, go on in its value's model.
+            ann = typing.get_args(ann)[1]
+            parts = parts[1:]
+        current = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
+    return sorted(current.model_fields) if current is not None else []
 
 
 def _clean(loc: tuple[int | str, ...]) -> tuple[int | str, ...]:

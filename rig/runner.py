@@ -278,14 +278,8 @@ class Runner:
             print(f"gonio: could not record the stop in {self.store.path}: {exc}", file=sys.stderr)
 
     def _shutdown(self) -> None:
-        keep = self.options.on_stop == "hold"
         try:
-            if keep:
-                self.link.shutdown(keep_torque=True)  # type: ignore[call-arg]
-            else:
-                self.link.shutdown()
-        except TypeError:
-            self.link.shutdown()
+            self.link.shutdown(keep_torque=self.options.on_stop == "hold")
         except LinkError as exc:
             print(f"gonio: warning: {exc}", file=sys.stderr)
 

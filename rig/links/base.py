@@ -41,6 +41,6 @@ class MotionLink(Protocol):
         """Halt all motion now, keeping the device powered and holding."""
         ...
 
-    def shutdown(self) -> None:
-        """Stop and leave the hardware safe (torque off / controller idle) and release the port."""
+    def shutdown(self, keep_torque: bool = False) -> None:
+        """Stop, leave the hardware safe (torque off / controller idle; ``keep_torque`` holds) and release the port."""
         ...

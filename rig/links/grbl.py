@@ -166,8 +166,12 @@ class GrblLink:
             log.warning("%s; resetting during motion (GRBL will raise ALARM:3)", exc)
         session.reset()
 
-    def shutdown(self) -> None:
-        """Stop any motion, leave the controller idle and close the port; safe to call twice."""
+    def shutdown(self, keep_torque: bool = False) -> None:
+        """Stop any motion, leave the controller idle and close the port; safe to call twice.
+
+        ``keep_torque`` is accepted for the MotionLink interface; whether idle steppers stay energised is
+        the controller's own setting ($1, step idle delay), not something a closing link can change.
+        """
         if self._closed:
             return
         try:

@@ -55,6 +55,7 @@ RIG_MISTAKES = [
     ("[link]\nkind = 'dynamixel'\n", r"\[link\] a dynamixel link needs port"),
     ("[link]\nkind = 'can'\n", r"link\.kind = 'can': expected a value 'simulated', 'dynamixel' or 'grbl'"),
     ("[axes.light]\nid = 'one'\n", r"axes\.light\.id = 'one': expected a valid integer"),
+    ("[axes.light]\nidd = 3\n", r"axes\.light\.idd = 3: unknown key; expected one of direction, gear_ratio, id,"),
     ("[axes.arm]\nid = 1\n", r"axes\.arm: no such joint in layout 'four_axis'; expected one of light, camera"),
     ("[axes.light]\nid = 1\n[axes.camera]\nid = 1\n", r"address 1 is used by two joints"),
     ("[geometry]\nsample_width_m = 2.0\n", r"\[geometry\] RigGeometry\.light_radius_m = 0\.5 m.*half-diagonal"),
