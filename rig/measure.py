@@ -19,7 +19,7 @@ from acquisition.frame import Camera, Frame
 from acquisition.hdr import HdrImage, merge_linear
 from acquisition.metering import meter
 from acquisition.noise import SensorNoise
-from acquisition.roi import RoiReading, reduce_roi
+from acquisition.roi import RoiError, RoiReading, reduce_roi
 
 Box = tuple[int, int, int, int]
 
@@ -125,10 +125,16 @@ def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | No
     if previous is not None and previous.peak > 0:
         plan = plan_exposure(previous.roi_level(), settings.noise, settings.target_snr, settings.timing,
                              max_frames=settings.max_frames, dark_frames=settings.dark_frames)  # fmt: skip
-        reading = _capture(camera, settings, plan.exposures_s, (), ())
-        if not reading.roi.lower_bound:
-            return reading
-        notes = ("the bracket planned from the previous point clipped: metered afresh",)
+        try:
+            reading = _capture(camera, settings, plan.exposures_s, (), ())
+        except RoiError:
+            # Every ROI pixel clipped in every frame (a dark point followed by a specular peak): meter.
+            notes = ("the bracket planned from the previous point clipped every pixel: metered afresh",)
+        else:
+            # Clipped pixels would be left out of the mean, and they are the brightest: never keep that.
+            if not reading.roi.lower_bound and not np.any(reading.roi.n_flagged):
+                return reading
+            notes = ("the bracket planned from the previous point clipped: metered afresh",)
 
     def take_roi(t: float) -> npt.NDArray[np.float64]:
         return _crop(_counts_above_black(_shoot(camera, t)), settings.roi)

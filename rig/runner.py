@@ -84,6 +84,8 @@ class RunSummary:
     references: int
     drift_warnings: int
     table: str
+    #: Rig time this call spent, by the instruments' clock (s): simulated time on the simulated rig.
+    rig_time_s: float = 0.0
 
 
 def _f(x: float) -> float:
@@ -117,6 +119,7 @@ class Runner:
     # -- the loop -------------------------------------------------------------------------------------
     def run(self) -> RunSummary:
         """Measure every point not yet in the journal, then write the table; stops safely on any fault."""
+        started = self.clock.now()
         records = self.store.records()
         done = {r["index"] for r in records if r["kind"] == "point"}
         ref_done = {r["slot"]: r for r in records if r["kind"] == "reference"}
@@ -158,7 +161,8 @@ class Runner:
         finally:
             bar.close()
             self._shutdown()
-        return RunSummary(self._measured, len(done), self._references, self._drift, str(table))
+        return RunSummary(self._measured, len(done), self._references, self._drift, str(table),
+                          self.clock.now() - started)  # fmt: skip
 
     def _postfix(self, point: PlannedPoint, reading: Reading) -> str:
         ti, _, to, _ = point.directions_deg

@@ -10,7 +10,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from rig.config import RigConfig, SweepConfig
+from rig.config import RigConfig, SweepConfig, parse, sweep_config
+from rig.config_schema import SweepFile
 from rig.runner import DriftWarning, Runner, RunStopped
 from rig.session import (
     capture_settings,
@@ -222,3 +223,20 @@ def test_two_runs_never_share_a_directory(tmp_path: Path) -> None:
     with pytest.raises(RunStoreError, match="run"):
         start_run(rig, sweep, tmp_path / "run", progress=False)
     assert json.loads((tmp_path / "run" / "status.json").read_text())["state"] == "finished"
+
+
+def test_a_bracket_planned_from_a_dark_point_that_clips_at_a_glossy_peak_is_metered_afresh(tmp_path: Path) -> None:
+    # A glossy lobe seen right after a dark off-peak point: the bracket planned from the dark level clips
+    # every ROI pixel, which must lead to fresh metering (not a camera fault, nor a mean of the unclipped).
+    glossy = {"model": "CookTorrance", "alpha": 0.1, "eta": [0.18, 0.42, 1.37], "k": [3.42, 2.35, 1.77]}
+    rig = sim_rig(glossy, camera={"roi": [14, 14, 18, 18]})
+    doc = {"sweep": {"kind": "list", "order": False, "points": [[30.0, 0.0, 70.0, 90.0], [30.0, 0.0, 30.0, 180.0]]},
+           "capture": {"target_snr": 100.0}}  # fmt: skip
+    sweep = sweep_config(parse(doc, SweepFile, "t.toml"), "t.toml")
+    summary = start_run(rig, sweep, tmp_path / "run", progress=False)
+    rows = read_rows(summary.table)
+    truth, got, se = truth_and_measured(rows, rig)
+    assert truth[1, 1] / truth[0, 1] > 300  # the second point is far brighter: the plan must clip
+    assert np.all(np.abs(got - truth) < 4.5 * se), (got - truth) / se
+    events = [r for r in RunStore.read(tmp_path / "run").records() if r["kind"] == "point"]
+    assert any("metered afresh" in n for n in events[1]["notes"]), events[1]
