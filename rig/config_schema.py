@@ -159,6 +159,7 @@ class Reference(Strict):
     theta_o_deg: Annotated[float, Field(ge=0, lt=85)] = 30.0
     every: Annotated[int, Field(ge=0)] = 50
     drift_sigma: Pos = 4.0
+    target_snr: Pos | None = None
 
 
 class Material(Strict):

@@ -14,6 +14,7 @@ journal keeps everything measured, and the run's status says why it stopped.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import warnings
@@ -61,6 +62,9 @@ class ReferenceSettings:
     joints: Joints
     every: int = 50
     drift_sigma: float = 4.0
+    #: SNR goal of reference readings (None: the points'). Every point between two references shares
+    #: their error, so a higher goal pays for itself after a few points.
+    target_snr: float | None = None
 
 
 @dataclass(frozen=True)
@@ -185,10 +189,10 @@ class Runner:
         names = set(Joints.__dataclass_fields__)
         return Joints.from_dict({k: v for k, v in held.items() if k in names})
 
-    def _read(self, previous: Level | None) -> Reading:
+    def _read(self, previous: Level | None, capture: CaptureSettings | None = None) -> Reading:
         for attempt in (1, 2):
             try:
-                return take_reading(self.camera, self.capture, previous)
+                return take_reading(self.camera, capture or self.capture, previous)
             except (OSError, RuntimeError, ValueError) as exc:
                 self._event("camera_error", f"{type(exc).__name__}: {exc}", attempt=attempt)
                 if attempt == 2:
@@ -232,7 +236,8 @@ class Runner:
         self.target.present()
         try:
             previous = Level.from_dict(last["level"]) if last is not None else None
-            reading = self._read(previous)
+            snr = ref.target_snr or self.capture.target_snr
+            reading = self._read(previous, dataclasses.replace(self.capture, target_snr=snr))
         finally:
             self.target.withdraw()
         record: dict[str, Any] = {

@@ -64,7 +64,7 @@ def reference_settings(rig: RigConfig) -> ReferenceSettings | None:
         return None
     joints = require(inverse(rig.geometry, ref.theta_i_deg, 0.0, ref.theta_o_deg, 180.0))
     return ReferenceSettings(ref.albedo, ref.albedo_std_error, ref.theta_i_deg, ref.theta_o_deg, joints,
-                             every=ref.every, drift_sigma=ref.drift_sigma)  # fmt: skip
+                             every=ref.every, drift_sigma=ref.drift_sigma, target_snr=ref.target_snr)  # fmt: skip
 
 
 def _per_point_exposure_s(rig: RigConfig, sweep: SweepConfig) -> float:
