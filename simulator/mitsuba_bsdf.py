@@ -43,12 +43,19 @@ switching away and back). :func:`ensure_registered` registers for the active var
 importing this module installs a Mitsuba variant callback that does so for every rgb variant set
 later. Models travel through the scene dict as a string key into this module's registry, because
 Mitsuba's ``Properties`` hold only numbers, strings, vectors, transforms and Mitsuba objects.
+
+A key is valid only in the process that registered it. For scenes written to disk (Mitsuba XML, a JSON
+scene dict) the model can travel instead as its JSON form (:mod:`model.serialize`) in the string property
+``model_json`` (:func:`json_plugin_dict`); the plugin then builds its own copy of the model. Such a file
+still renders only where this plugin is registered (a Python process that imported this module under an
+rgb variant): stock Mitsuba has no ``gonio_model``. MERL tables have no JSON form and keep the key.
 """
 
 from __future__ import annotations
 
 import contextlib
 import itertools
+import json
 import threading
 from collections.abc import Iterator
 from typing import Any
@@ -59,11 +66,14 @@ import numpy as np
 import numpy.typing as npt
 
 from model.base import BRDF
+from model.serialize import ModelFormatError, from_json_dict, to_json_dict
 from simulator.mitsuba_variant import kind_of
 
 PLUGIN = "gonio_model"
 #: Property of the scene dict that carries the registry key of the model.
 MODEL_KEY = "model"
+#: Property of the scene dict (or XML) that carries the model itself as JSON, valid in any process.
+MODEL_JSON_KEY = "model_json"
 
 _lock = threading.RLock()
 _models: dict[str, BRDF] = {}
@@ -101,6 +111,21 @@ def registered_model(key: str) -> BRDF:
 def plugin_dict(model: BRDF) -> dict[str, Any]:
     """Mitsuba scene-dict entry of the plugin BSDF for ``model`` (register the plugin before loading)."""
     return {"type": PLUGIN, MODEL_KEY: register_model(model)}
+
+
+def json_plugin_dict(model: BRDF) -> dict[str, Any]:
+    """Scene-dict entry of the plugin carrying ``model`` as JSON text: plain data, usable in any process."""
+    return {"type": PLUGIN, MODEL_JSON_KEY: json.dumps(to_json_dict(model))}
+
+
+def model_from_json(text: str) -> BRDF:
+    """The model in a ``model_json`` property (see :func:`json_plugin_dict`); errors name the property."""
+    where = f"{PLUGIN} property {MODEL_JSON_KEY!r}"
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ModelFormatError(f"{where}: not valid JSON ({exc}): {text[:80]!r}") from None
+    return from_json_dict(doc, source=where)
 
 
 def rgb_columns(f: npt.ArrayLike, n: int) -> np.ndarray:
@@ -154,10 +179,17 @@ def _make_class(variant: str) -> type:
 
         def __init__(self, props: Any) -> None:
             ns.BSDF.__init__(self, props)
-            if MODEL_KEY not in props:
-                raise KeyError(f"{PLUGIN}: the scene dict needs a {MODEL_KEY!r} key (use to_mitsuba)")
-            self.key = str(props[MODEL_KEY])
-            self.model = registered_model(self.key)
+            if MODEL_KEY in props:
+                self.key = str(props[MODEL_KEY])
+                self.model = registered_model(self.key)
+            elif MODEL_JSON_KEY in props:
+                self.key = ""
+                self.model = model_from_json(str(props[MODEL_JSON_KEY]))
+            else:
+                raise KeyError(
+                    f"{PLUGIN}: the scene dict needs a {MODEL_KEY!r} key (use to_mitsuba) or a "
+                    f"{MODEL_JSON_KEY!r} string (use json_plugin_dict)"
+                )
             self.m_flags = flags
             self.m_components = [flags]
 
