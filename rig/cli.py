@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from rig.cli_adaptive import add_adaptive_parser
+from rig.cli_analyze import add_analyze_parser
 from rig.cli_run import EXIT_BAD_INPUT, EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_OK, add_run_parsers
 from rig.cli_servo import add_servo_parser
 from rig.cli_sim import add_sim_parser
@@ -42,6 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     models.add_argument("--out", default="out/models", help="output directory (default: out/models)")
     models.set_defaults(func=_models)
+    add_analyze_parser(sub)
+    add_adaptive_parser(sub)
     add_servo_parser(sub)
     add_sim_parser(sub)
     return parser

@@ -28,7 +28,8 @@ def test_slice_peaks_at_the_mirror_direction():
 
 
 COMMANDS = [["demo"], ["models"], ["run"], ["plan"], ["resume"], ["servo", "scan"], ["servo", "ping"],
-            ["servo", "status"], ["servo", "move"], ["sim", "servos"], ["sim", "grbl"], ["sim", "rig"]]  # fmt: skip
+            ["servo", "status"], ["servo", "move"], ["sim", "servos"], ["sim", "grbl"], ["sim", "rig"], ["analyze"],
+            ["adaptive"]]  # fmt: skip
 
 
 @pytest.mark.parametrize("command", COMMANDS, ids=" ".join)
