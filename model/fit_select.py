@@ -152,12 +152,17 @@ def select(
             cands.append(Candidate(spec.name, k, None, str(exc)))
             continue
         cands.append(Candidate(spec.name, k, res))
+    return choose(cands, criterion, delta)
+
+
+def choose(cands: Sequence[Candidate], criterion: str = "bic", delta: float = 2.0) -> Selection:
+    """The selection among fitted candidates: fewest parameters within delta of the best criterion, and why."""
     fitted = [c for c in cands if c.result is not None]
     if not fitted:
         raise FitError("select: no candidate could be fitted:\n" + "\n".join(f"  {c.name}: {c.error}" for c in cands))
     best = min(c.criterion(criterion) for c in fitted)
     # Fewest parameters first; ties keep ladder order.
     ok = [c for c in fitted if c.criterion(criterion) <= best + delta]
-    chosen = min(ok, key=lambda c: (c.n_params, cands.index(c)))
+    chosen = min(ok, key=lambda c: (c.n_params, list(cands).index(c)))
     assert chosen.result is not None
     return Selection(tuple(cands), chosen.result, criterion, delta, _reason(cands, chosen, criterion, delta))

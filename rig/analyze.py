@@ -30,7 +30,7 @@ from acquisition.atomic import atomic_path
 from model.base import BRDF, Model
 from model.fit import LOSSES, FitWarning, fit
 from model.fit_samples import FitError, Samples
-from model.fit_select import Candidate, Selection, _reason, default_ladder
+from model.fit_select import Candidate, Selection, choose, default_ladder
 from model.fit_spec import LAMBERT, FitSpec, blinn_phong, ggx_conductor, lambert_ggx, ward_anisotropic
 from model.merl import MerlFormatError, MerlTable, read_merl
 from model.serialize import to_json_dict
@@ -244,16 +244,7 @@ def fit_ladder(
             r = cand.result
             how = f"chi2/dof = {r.reduced_chi2:.4g}" if r is not None else f"not fitted: {cand.error}"
             log(f"fitting {spec.name} ({k} parameters): {how} ({times[spec.name]:.2f} s)")
-    fitted = [c for c in cands if c.result is not None]
-    if not fitted:
-        raise FitError("no candidate could be fitted:\n" + "\n".join(f"  {c.name}: {c.error}" for c in cands))
-    # select()'s rule: the fewest parameters within delta of the lowest criterion, ties in ladder order.
-    best = min(c.criterion(criterion) for c in fitted)
-    ok = [c for c in fitted if c.criterion(criterion) <= best + delta]
-    chosen = min(ok, key=lambda c: (c.n_params, cands.index(c)))
-    assert chosen.result is not None
-    reason = _reason(cands, chosen, criterion, delta)
-    return Selection(tuple(cands), chosen.result, criterion, delta, reason), times, list(dict.fromkeys(caught))
+    return choose(cands, criterion, delta), times, list(dict.fromkeys(caught))
 
 
 def load_and_fit(
