@@ -21,31 +21,48 @@ nu = 1 and this is (J^T J)^-1. Where residuals exceed the noise (reduced chi2 si
 covariance is scaled by the reduced chi2 and a warning says so. Robust losses are ignored in the
 covariance (it is the non-robust estimate at the robust optimum). chi2 is always computed from the
 plain residuals (model - value) / std_error, whatever the loss, so fits can be compared.
+
+Saturated samples (``lower_bound``: the truth is at least the value) are one-sided constraints by default
+(``lower_bounds="constrain"``): each adds the residual min(0, r), r as above, so a model below a bound is
+pulled up and one above it is free (see model/fit_problem.py for the hinge). ``lower_bounds="exclude"``
+leaves them out. Either way chi2 and dof = N C - k count the N ordinary samples only: a satisfied bound
+carries no information about the noise and an active one holds the model at a value that is not a
+measurement of it, so neither is a degree of freedom. For the same reason the covariance comes from the
+ordinary samples' rows: a bound moves the estimate but adds no precision, so the std errors say what the
+data alone determine (conservative where a bound is active). The bounds' squared shortfalls are reported
+apart as ``bound_chi2``, and a warning names bounds the final model still lies below by more than 2 std
+errors. A bound without a positive std error borrows the median relative std error of the ordinary
+samples in its channel, times its value.
+
+Large sample sets (a full MERL table: 1.1 million RGB samples) are solved in stages, with the geometry
+cached and compiled model kernels used where they exist (model/fit_problem.py, bench/fit.py).
 """
 
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
-from scipy import optimize, stats
+from scipy import stats
 
 from model._params import ParameterError
-from model.base import Model, Pair
+from model.base import Model
+from model.fit_problem import Problem, Rows, jacobian, solve_staged
 from model.fit_samples import FitError, Samples
 from model.fit_spec import LAMBERT, FitSpec, Param, blinn_phong, ggx_conductor, lambert_ggx, ward_anisotropic
 
 Array = npt.NDArray[np.float64]
 LOSSES = ("l2", "cosine_l2", "log", "cbrt")
 ROBUST = (None, "soft_l1", "huber", "cauchy")
+LOWER_BOUNDS = ("constrain", "exclude")
 #: Singular values of the column-normalised Jacobian below this fraction of the largest mark directions
 #: in parameter space the data do not constrain.
 RANK_TOL = 1e-7
-#: Samples on which several starts are screened before the best is polished on all of them.
-SCREEN_SAMPLES = 2000
+#: A lower bound the fitted model lies below by more than this many std errors is warned about.
+BOUND_TOLERANCE = 2.0
 
 __all__ = [
     "LAMBERT", "FitError", "FitResult", "FitSpec", "FitWarning", "Param", "Samples", "blinn_phong", "fit",
@@ -61,9 +78,11 @@ class FitWarning(UserWarning):
 class FitResult:
     """A fitted model with its parameters, their std errors (field units) and the goodness of fit.
 
-    ``residuals`` (N, C) are (model - value) / std_error at the samples used; ``chi2`` their sum of
-    squares over ``dof`` = N C - n_params degrees of freedom; ``loss_value`` the optimiser's cost
-    (0.5 sum rho(r^2)).
+    ``residuals`` (N, C) are (model - value) / std_error at the ordinary samples used; ``chi2`` their sum
+    of squares over ``dof`` = N C - n_params degrees of freedom; ``loss_value`` the optimiser's cost
+    (0.5 sum rho(r^2), constraints included). ``n_bounds`` saturated samples entered as lower bounds;
+    ``bound_chi2`` is the sum of their squared shortfalls max(0, value - model) / std_error (0 when the
+    model clears every bound; computed in "exclude" mode too).
     """
 
     spec: str
@@ -84,6 +103,8 @@ class FitResult:
     n_starts_agreeing: int
     std_error_assumed: bool
     warnings: tuple[str, ...]
+    n_bounds: int = 0
+    bound_chi2: float = 0.0
 
     @property
     def n_params(self) -> int:
@@ -124,8 +145,10 @@ class FitResult:
         """A few lines of text: parameters +- std errors, chi2, and the warnings."""
         noise = "assumed" if self.std_error_assumed else "measured"
         lines = [
-            f"{self.spec} fit to {self.n_samples} samples ({self.n_excluded} excluded), loss {self.loss}"
-            + (f" ({self.robust})" if self.robust else "") + f", {self.n_starts_agreeing}/{self.n_starts} starts agree",
+            f"{self.spec} fit to {self.n_samples} samples ({self.n_excluded} excluded"
+            + (f", {self.n_bounds} lower bounds, shortfall chi2 {self.bound_chi2:.3g}" if self.n_bounds else "")
+            + f"), loss {self.loss}" + (f" ({self.robust})" if self.robust else "")
+            + f", {self.n_starts_agreeing}/{self.n_starts} starts agree",
             *(f"  {n:>12} = {v:.6g} +- {e:.2g}" for n, v, e in zip(self.names, self.values, self.std_errors)),  # noqa: B905
             f"  chi2 = {self.chi2:.4g} for {self.dof} dof (reduced {self.reduced_chi2:.3g}, p = {self.p_value:.3g}) "
             f"against the {noise} std errors: residuals {'at' if self.noise_reached else 'above'} the noise",
@@ -133,103 +156,42 @@ class FitResult:
         return "\n".join(lines + [f"  warning: {w}" for w in self.warnings])
 
 
-def _predict(spec: FitSpec, x_native: Array, pair: Pair, channels: int, *, validate: bool = False) -> Array:
-    """Model values (N, C) in 1/sr at the pairs (all above the horizon), reusing the pair's geometry.
-
-    The numpy path with the cached Pair, not CookTorrance's compiled kernel: inside the optimiser's loop
-    the kernel measured no faster here and far noisier (its threads' wake-up), see bench/fit.py.
-    """
-    m = spec.build(spec.values(x_native, channels), validate=validate)
-    with np.errstate(all="ignore"):
-        f = m._eval(pair)
-    return np.broadcast_to(f, (f.shape[0], channels))
-
-
-def _transform(loss: str, cos_i: Array) -> tuple[Callable[[Array], Array], bool]:
-    if loss == "log":
-        return (lambda f: np.log1p(np.maximum(f * cos_i, -1.0 + 1e-12))), True
-    if loss == "cbrt":
-        return np.cbrt, True
-    return (lambda f: f), False
-
-
 def _coplanar(s: Samples) -> bool:
     """Whether every wi and wo lies in one plane through the origin (e.g. one plane of incidence)."""
-    sv = np.linalg.svd(np.concatenate([s.wi, s.wo]), compute_uv=False)
-    return bool(sv.size < 3 or sv[2] <= 1e-9 * sv[0])
+    if 2 * s.n < 3:
+        return True
+    # The smallest singular value of the stacked directions, measured along the Gram matrix's weakest
+    # axis (a 3 x 3 eigenproblem instead of an SVD of 2 N rows): the data leave that axis by at most this.
+    lam, vec = np.linalg.eigh(s.wi.T @ s.wi + s.wo.T @ s.wo)
+    off = np.sqrt(np.sum((s.wi @ vec[:, 0]) ** 2) + np.sum((s.wo @ vec[:, 0]) ** 2))
+    return bool(off <= 1e-9 * np.sqrt(lam[-1]))
 
 
-Groups = list[list[tuple[int, int | None]]]
+def _bounds(ordinary: Samples, saturated: Samples, notes: list[str]) -> Samples | None:
+    """The saturated samples usable as lower bounds (finite values; None if none), each with a positive std error.
 
-
-def _jacobian(f: Callable[[Array], Array], x: Array, groups: Groups, channels: int, f0: Array | None = None) -> Array:
-    """Finite-difference Jacobian in the optimiser's coordinates, one evaluation per group of columns.
-
-    Per-channel parameters of one field touch disjoint residuals (their own channel), so a group perturbs
-    them together and each column keeps only its channel's rows: a GGX conductor on RGB costs 3
-    evaluations per Jacobian instead of 7. Forward differences when f0 = f(x) is given (inside the
-    optimiser), central ones otherwise (for the covariance).
+    A bound without a positive, finite std error of its own borrows the median relative std error of the
+    ordinary samples in its channel times its value, floored at their median std error.
     """
-    base = f0 if f0 is not None else f(x)
-    out = np.zeros((base.size, x.size))
-    for grp in groups:
-        h = np.zeros_like(x)
-        cols = [j for j, _ in grp]
-        h[cols] = (1.5e-8 if f0 is not None else 1e-6) * np.maximum(1.0, np.abs(x[cols]))
-        diff = f(x + h) - base if f0 is not None else (f(x + h) - f(x - h)) / 2.0
-        for j, ch in grp:
-            if ch is None:
-                out[:, j] = diff / h[j]
-            else:
-                out[ch::channels, j] = diff[ch::channels] / h[j]
-    return out
+    ok = np.all(np.isfinite(saturated.value), axis=1)
+    if not ok.all():
+        notes.append(f"{int((~ok).sum())} saturated samples without a finite value carry no bound and are ignored")
+    if not ok.any():
+        return None
+    b = saturated.subset(ok)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.nanmedian(np.where(ordinary.value != 0, ordinary.std_error / np.abs(ordinary.value), np.nan), axis=0)
+    borrowed = np.fmax(rel * np.abs(b.value), np.median(ordinary.std_error, axis=0))
+    se = np.where(np.isfinite(b.std_error) & (b.std_error > 0), b.std_error, borrowed)
+    return Samples(b.wi, b.wo, b.value, se, b.lower_bound, b.std_error_assumed, (), b.source)
 
 
-class _Problem:
-    """The objective of one fit over a set of sample rows, in the optimiser's coordinates u."""
-
-    def __init__(self, spec: FitSpec, s: Samples, loss: str, weighted: bool, is_log: Array) -> None:
-        self.spec, self.c, self.is_log = spec, s.channels, is_log
-        self.pair = Pair(s.wi, s.wo)
-        cos_i, cos_o = s.wi[:, 2:3], s.wo[:, 2:3]
-        self.g, curved = _transform(loss, cos_i)
-        s_noise = (self.g(s.value + s.std_error) - self.g(s.value - s.std_error)) / 2.0 if curved else s.std_error
-        scale = s_noise if weighted else np.ones_like(s.value)
-        w = np.ones_like(cos_i)
-        if loss == "cosine_l2":
-            w = cos_i * np.sqrt(np.sqrt(1.0 - cos_i**2) * np.sqrt(1.0 - cos_o**2))
-        self.w_over, self.gy = w / scale, self.g(s.value)
-        #: std of each objective residual implied by the std errors (1 for the weighted losses)
-        self.nu = (w * s_noise / scale).ravel()
-        self.groups: Groups = []
-        i = 0
-        for q, k in zip(spec.params, spec.sizes(self.c), strict=True):
-            self.groups.append([(i + ch, ch if q.per_channel else None) for ch in range(k)])
-            i += k
-        self._last: tuple[Array, Array] | None = None
-
-    def native(self, u: Array) -> Array:
-        """Optimiser coordinates to native parameter values."""
-        return np.where(self.is_log, np.exp(np.where(self.is_log, u, 0.0)), u)
-
-    def residuals(self, u: Array) -> Array:
-        """The objective's residual vector (N C,)."""
-        r = (self.w_over * (self.g(_predict(self.spec, self.native(u), self.pair, self.c)) - self.gy)).ravel()
-        self._last = (u.copy(), r)
-        return r
-
-    def jac(self, u: Array) -> Array:
-        """Forward-difference Jacobian, reusing the residuals least_squares just computed at u."""
-        f0 = self._last[1] if self._last is not None and np.array_equal(self._last[0], u) else self.residuals(u)
-        return _jacobian(self.residuals, u, self.groups, self.c, f0)
-
-    def solve(
-        self, u0: Array, bounds: tuple[Array, Array], robust: str | None, f_scale: float
-    ) -> optimize.OptimizeResult:
-        """One bounded trust-region run from u0."""
-        return optimize.least_squares(
-            self.residuals, u0, jac=self.jac, bounds=bounds, loss=robust or "linear", f_scale=f_scale, x_scale="jac"
-        )
+def _join(ordinary: Samples, bounds: Samples) -> Samples:
+    """The ordinary samples followed by the lower bounds, as one row set (lower_bound flags the bounds)."""
+    wi, wo, value, se = (np.concatenate([getattr(ordinary, k), getattr(bounds, k)]) for k in
+                         ("wi", "wo", "value", "std_error"))  # fmt: skip
+    flags = np.concatenate([np.zeros(ordinary.n, dtype=bool), np.ones(bounds.n, dtype=bool)])
+    return Samples(wi, wo, value, se, flags, ordinary.std_error_assumed, (), ordinary.source)
 
 
 def fit(
@@ -242,21 +204,25 @@ def fit(
     seed: int = 0,
     weighted: bool = True,
     f_scale: float = 3.0,
+    lower_bounds: str = "constrain",
     warn: bool = True,
 ) -> FitResult:
     """Fit spec's model to the samples (values in 1/sr); see the module docstring for losses and errors.
 
     ``starts``: the spec's initial guess plus starts - 1 random points inside the bounds (seeded); the
-    lowest cost wins. Warnings are collected in the result and, with ``warn``, also issued as FitWarning.
+    lowest cost wins. ``lower_bounds``: "constrain" (default) or "exclude" the saturated samples. Warnings
+    are collected in the result and, with ``warn``, also issued as FitWarning.
     """
-    if loss not in LOSSES or robust not in ROBUST or starts < 1:
+    if loss not in LOSSES or robust not in ROBUST or starts < 1 or lower_bounds not in LOWER_BOUNDS:
         raise FitError(
-            f"fit: loss {loss!r} (one of {LOSSES}), robust {robust!r} (one of {ROBUST}), starts {starts} >= 1"
+            f"fit: loss {loss!r} (one of {LOSSES}), robust {robust!r} (one of {ROBUST}), starts {starts} >= 1, "
+            f"lower_bounds {lower_bounds!r} (one of {LOWER_BOUNDS})"
         )
     notes = list(samples.notes)
     up = (samples.wi[:, 2] > 0) & (samples.wo[:, 2] > 0)
-    n_lower = int((samples.lower_bound & up).sum())
-    if n_lower:
+    saturated = samples.lower_bound & up
+    n_lower = int(saturated.sum())
+    if n_lower and lower_bounds == "exclude":
         notes.append(f"{n_lower} saturated (lower-bound) samples excluded from the fit")
     if (~up).any():
         notes.append(f"{int((~up).sum())} samples at or below the horizon excluded")
@@ -281,25 +247,23 @@ def fit(
             f"all {n} samples lie in one plane: out-of-plane behaviour is unconstrained by the data and "
             "rests on the model's isotropy"
         )
+    bounds = _bounds(s, samples.subset(saturated), notes if lower_bounds == "constrain" else []) if n_lower else None
+    constrain = lower_bounds == "constrain" and bounds is not None
+    n_bounds = bounds.n if constrain and bounds is not None else 0
 
-    lo = np.concatenate([np.full(k, q.to_internal(q.lo)) for q, k in zip(spec.params, spec.sizes(c), strict=True)])
-    hi = np.concatenate([np.full(k, q.to_internal(q.hi)) for q, k in zip(spec.params, spec.sizes(c), strict=True)])
-    is_log = np.concatenate([np.full(k, q.log) for q, k in zip(spec.params, spec.sizes(c), strict=True)])
-    full = _Problem(spec, s, loss, weighted, is_log)
+    sizes = spec.sizes(c)
+    lo = np.concatenate([np.full(k, q.to_internal(q.lo)) for q, k in zip(spec.params, sizes, strict=True)])
+    hi = np.concatenate([np.full(k, q.to_internal(q.hi)) for q, k in zip(spec.params, sizes, strict=True)])
+    is_log = np.concatenate([np.full(k, q.log) for q, k in zip(spec.params, sizes, strict=True)])
     rng = np.random.default_rng(seed)
     x0 = spec.initial(s)
     inner = lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo)
     tries = [np.where(is_log, np.log(np.where(is_log, x0, 1.0)), x0)] + [rng.uniform(*inner) for _ in range(starts - 1)]
-    # Several starts on many samples: screen them on a seeded subsample (the same minima, 5x cheaper at
-    # 10,000 samples), then polish the winner on all samples.
-    screen = full
-    if starts > 1 and n > SCREEN_SAMPLES:
-        screen = _Problem(spec, s.subset(rng.choice(n, SCREEN_SAMPLES, replace=False)), loss, weighted, is_log)
-    results = [screen.solve(u, (lo, hi), robust, f_scale) for u in tries]
-    best = min(results, key=lambda r: r.cost)
-    agreeing = sum(r.cost <= best.cost * (1 + 1e-6) + 1e-12 for r in results)
-    if screen is not full:
-        best = full.solve(best.x, (lo, hi), robust, f_scale)
+    # The ordinary samples come first in the rows, so the first n rows of any prediction are theirs.
+    rows = _join(s, bounds) if constrain and bounds is not None else s
+    best, agreeing, full = solve_staged(
+        lambda r: Problem(spec, r, loss, weighted, is_log), rows, tries, (lo, hi), robust, f_scale, rng
+    )
     if not best.success:
         notes.append(f"the optimiser stopped without converging: {best.message}")
     ux: Array = best.x
@@ -311,19 +275,31 @@ def fit(
     except ParameterError as exc:
         notes.append(f"the best fit breaks a rule of the model ({exc}); the returned model is unvalidated")
         model = spec.build(vals, validate=False)
-    resid = (_predict(spec, x, full.pair, c) - s.value) / s.std_error
+    pred = full.rows.predict(spec, x)
+    resid = (pred[:n] - s.value) / s.std_error
     chi2 = float(np.sum(resid**2))
     dof = n * c - p
 
     # Covariance in native units: chain rule d/dnative = d/du / (dnative/du), column-normalised for the SVD.
-    jac = _jacobian(full.residuals, ux, full.groups, c) / np.where(is_log, x, 1.0)
-    norms = np.linalg.norm(jac, axis=0)
+    # Only the ordinary samples' rows (the first n c): a lower bound is not a measurement, and an active one
+    # would otherwise count as one, at its value, and claim a precision a one-sided bound cannot give.
+    jn = jacobian(full.residuals, ux, full.groups, c)[: n * c]
+    nu = full.nu[: n * c]
+    jn /= np.where(is_log, x, 1.0)
+    norms = np.sqrt(np.einsum("ij,ij->j", jn, jn))
     norms = np.where(norms > 0, norms, 1.0)
-    _, sv, vt = np.linalg.svd(jac / norms, full_matrices=False)
+    jn /= norms
+    # J's singular values and right vectors are those of its (P, P) R factor: no (M, P) left vectors to form.
+    r_factor = cast(Array, np.linalg.qr(jn, mode="r"))
+    _, sv, vt = np.linalg.svd(r_factor)
     keep = sv > RANK_TOL * sv[0]
     ainv = (vt[keep].T / sv[keep] ** 2) @ vt[keep]
-    jn = jac / norms
-    cov = ainv @ ((jn * full.nu[:, None] ** 2).T @ jn) @ ainv / np.outer(norms, norms)
+    if np.all(nu == 1.0):
+        meat = r_factor.T @ r_factor
+    else:
+        jw = jn * nu[:, None]
+        meat = jw.T @ jw
+    cov = ainv @ meat @ ainv / np.outer(norms, norms)
     red = chi2 / dof
     if red > 1.0 + 3.0 * np.sqrt(2.0 / dof):
         cov *= red
@@ -342,18 +318,25 @@ def fit(
         names = ", ".join(f"{labels[i]} = {x[i]:.4g}" for i in np.flatnonzero(at_bound))
         notes.append(f"at a bound: {names}; their std errors assume the bound is not there")
 
-    if n_lower:
-        lb = samples.subset(samples.lower_bound & up)
-        shortfall = _predict(spec, x, Pair(lb.wi, lb.wo), c) < lb.value
-        if shortfall.any():
+    bound_chi2 = 0.0
+    if bounds is not None:
+        pred_b = pred[n:] if constrain else Rows(bounds).predict(spec, x)
+        short = np.maximum((bounds.value - pred_b) / bounds.std_error, 0.0)
+        bound_chi2 = float(np.sum(short**2))
+        below = (short > BOUND_TOLERANCE).any(axis=1)
+        if below.any():
+            why = (
+                "even as constraints: the model cannot reach the saturated peak" if constrain else
+                "they were excluded (lower_bounds='exclude'); constraining the fit with them would lift it"
+            )  # fmt: skip
             notes.append(
-                f"the fit lies below {int(shortfall.any(axis=1).sum())} of {n_lower} saturated lower bounds: "
-                "the saturated peak is higher than the model predicts and the data cannot say by how much"
+                f"the fit lies more than {BOUND_TOLERANCE:g} std errors below {int(below.sum())} of {bounds.n} "
+                f"saturated lower bounds (by up to {short.max():.3g}): {why}"
             )
     if warn:
         for note in notes:
             warnings.warn(f"{spec.name}: {note}", FitWarning, stacklevel=2)
     return FitResult(
         spec.name, model, tuple(labels), x, err, cov, resid, chi2, dof, loss, robust, float(best.cost), n,
-        samples.n - n, starts, int(agreeing), s.std_error_assumed, tuple(notes),
+        samples.n - n - n_bounds, starts, agreeing, s.std_error_assumed, tuple(notes), n_bounds, bound_chi2,
     )  # fmt: skip

@@ -176,31 +176,48 @@ class Samples:
 
     @classmethod
     def from_merl(
-        cls, table: MerlTable, n: int, seed: int | np.random.Generator = 0, *, relative_error: float = 0.05
+        cls, table: MerlTable, n: int | None, seed: int | np.random.Generator = 0, *, relative_error: float = 0.05
     ) -> Samples:
         """n samples at random MERL bin centres (random phi_h), RGB in 1/sr, with an assumed relative error.
 
+        ``n=None`` takes every bin with data whose centre lies above the horizon (1,096,216 of the 1,458,000
+        when every bin holds data), each once, at phi_h = 0 and with the bin's own value: the table is
+        isotropic (its value does not depend on phi_h), and phi_h does not change whether a pair is above
+        the horizon. A model with azimuthal structure (anisotropic Ward) then sees one azimuth only and its
+        second slope is left unconstrained; draw n samples (random phi_h) for such models.
         MERL files carry no uncertainties; ``relative_error`` (dimensionless) times the value, floored at
         relative_error times the median value, stands in for them and the result says it is assumed.
         """
-        if n < 1 or relative_error <= 0:
-            raise FitError(f"from_merl: need n >= 1 and relative_error > 0; got n = {n}, {relative_error}")
-        rng = np.random.default_rng(seed)
+        if (n is not None and n < 1) or relative_error <= 0:
+            raise FitError(f"from_merl: need n >= 1 (or None) and relative_error > 0; got n = {n}, {relative_error}")
         th, td, pd = (a.reshape(-1) for a in bin_centers())
-        wi_all, wo_all = np.empty((0, 3)), np.empty((0, 3))
-        # Bins whose directions fall below the horizon or hold no data are rejected; draw until n remain.
-        for _ in range(20):
-            idx = rng.integers(0, th.size, size=4 * n)
-            wi, wo = from_half_diff(th[idx], rng.uniform(0, 2 * np.pi, idx.size), td[idx], pd[idx])
-            ok = (wi[:, 2] > 0) & (wo[:, 2] > 0) & table.has_data(wi, wo)
-            wi_all, wo_all = np.concatenate([wi_all, wi[ok]]), np.concatenate([wo_all, wo[ok]])
-            if wi_all.shape[0] >= n:
-                break
-        if wi_all.shape[0] < n:
-            raise FitError(f"from_merl: only {wi_all.shape[0]} bins with data above the horizon; asked for {n}")
-        wi_all, wo_all = wi_all[:n], wo_all[:n]
-        value = np.asarray(table.eval(wi_all, wo_all), dtype=np.float64)
+        if n is None:
+            # Bin centres map to their own bins, so the values are read by index, not looked up again.
+            every = np.asarray(table.values, dtype=np.float64).reshape(table.channels, -1).T
+            filled = np.flatnonzero(np.all(np.isfinite(every), axis=1))
+            wi, wo = from_half_diff(th[filled], 0.0, td[filled], pd[filled])
+            up = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+            wi_all, wo_all = np.asarray(wi[up], dtype=np.float64), np.asarray(wo[up], dtype=np.float64)
+            value = every[filled[up]]
+            if wi_all.shape[0] == 0:
+                raise FitError("from_merl: the table has no bins with data above the horizon")
+        else:
+            rng = np.random.default_rng(seed)
+            wi_all, wo_all = np.empty((0, 3)), np.empty((0, 3))
+            # Bins whose directions fall below the horizon or hold no data are rejected; draw until n remain.
+            for _ in range(20):
+                idx = rng.integers(0, th.size, size=4 * n)
+                wi, wo = from_half_diff(th[idx], rng.uniform(0, 2 * np.pi, idx.size), td[idx], pd[idx])
+                ok = (wi[:, 2] > 0) & (wo[:, 2] > 0) & table.has_data(wi, wo)
+                wi_all, wo_all = np.concatenate([wi_all, wi[ok]]), np.concatenate([wo_all, wo[ok]])
+                if wi_all.shape[0] >= n:
+                    break
+            if wi_all.shape[0] < n:
+                raise FitError(f"from_merl: only {wi_all.shape[0]} bins with data above the horizon; asked for {n}")
+            wi_all, wo_all = wi_all[:n], wo_all[:n]
+            value = np.asarray(table.eval(wi_all, wo_all), dtype=np.float64)
         floor = relative_error * float(np.median(np.abs(value)))
         se = np.maximum(relative_error * np.abs(value), max(floor, 1e-12))
         note = f"std errors assumed: {relative_error:g} x value (MERL tables carry no uncertainties)"
-        return cls(wi_all, wo_all, value, se, np.zeros(n, dtype=bool), True, (note,), table.source or "MERL")
+        lower = np.zeros(wi_all.shape[0], dtype=bool)
+        return cls(wi_all, wo_all, value, se, lower, True, (note,), table.source or "MERL")

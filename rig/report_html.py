@@ -85,7 +85,7 @@ def _source(a: Analysis) -> str:
         rows += [
             ("run status", s.state + (f" ({s.stop_reason})" if s.stop_reason else "")),
             ("points", f"{s.measured} measured of {s.planned} planned; {s.unreachable} unreachable (not planned)"),
-            ("saturated points", f"{s.lower_bound} lower bounds (left out of the fit)"),
+            ("saturated points", f"{s.lower_bound} lower bounds (one-sided: the fit may not lie below)"),
             ("sweep", f"{s.sweep_name} ({s.sweep_kind})"),
             ("rig", str(s.rig_name)),
         ]  # fmt: skip
@@ -95,7 +95,8 @@ def _source(a: Analysis) -> str:
         rows.append(("samples", f"{s.measured} random bins (std errors assumed)"))
     if a.references:
         rows.append(("drawn for comparison", "; ".join(r.label for r in a.references)))
-    rows.append(("samples fitted", f"{a.samples.n} ({int(a.samples.lower_bound.sum())} lower bounds excluded)"))
+    n_lower = int(a.samples.lower_bound.sum())
+    rows.append(("samples fitted", f"{a.samples.n} ({n_lower} of them lower bounds, fitted as one-sided constraints)"))
     rows += [("note", n) for n in s.notes]
     rows.append(("fit", f"loss {a.loss}, {a.starts} starts, chosen by {a.selection.criterion.upper()}"))
     return "<table>" + "".join(f"<tr><th>{escape(k)}</th><td>{escape(v)}</td></tr>" for k, v in rows) + "</table>"
