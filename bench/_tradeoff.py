@@ -8,7 +8,6 @@ pairs cover the same range, so no design is judged where none of them measured.
 
 from __future__ import annotations
 
-import csv
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -22,8 +21,9 @@ from model.fit import fit
 from model.fit_design import ErrorPairs, brdf_error
 from model.fit_samples import Samples
 from model.fit_spec import LAMBERT, FitSpec, ggx_conductor, lambert_ggx
-from rig.config import RigConfig, material_from, parse, rig_config, sweep_config
-from rig.config_schema import RigFile, SweepFile
+from rig.adaptive import measure_points
+from rig.config import RigConfig, material_from, parse, rig_config
+from rig.config_schema import RigFile
 from rig.kinematics import solve_degrees
 from rig.sweeps import half_diff_to_directions, normalise, unique_rows
 
@@ -134,19 +134,13 @@ def measure_and_fit(rig: RigConfig, material: Material, strategy: str, pts: Floa
     """Run the design on the simulated rig into ``out``, fit the material's spec, and score the fit."""
     import warnings
 
-    from rig.session import start_run
-
-    table = {"name": strategy, "sweep": {"kind": "list", "points": pts.tolist()}, "capture": {"target_snr": SNR}}
-    sweep = sweep_config(parse(table, SweepFile, f"<{strategy}>"), f"<{strategy}>")
-    summary = start_run(rig, sweep, out, progress=False)
-    with open(summary.table, newline="") as fh:
-        rows = list(csv.DictReader(fh))
+    rows, rig_time_s = measure_points(rig, pts, out, SNR)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = fit(material.spec, Samples.from_table_rows(rows, source=str(out)), starts=4, warn=False)
     truth = material_from(rig)
     err, shape = brdf_error(res.model, truth, pairs), brdf_error(res.model, truth, pairs, scale_free=True)
-    return Outcome(strategy, len(rows), summary.rig_time_s, err, shape, res.reduced_chi2)
+    return Outcome(strategy, len(rows), rig_time_s, err, shape, res.reduced_chi2)
 
 
 def plot(results: dict[str, list[Outcome]], goal: dict[str, float], path: Path) -> Path:

@@ -55,14 +55,20 @@ class ErrorPairs:
     max_theta_deg: float
 
 
+def cosine_zeniths(rng: np.random.Generator, n: int, max_theta_deg: float) -> Array:
+    """n zenith angles (deg) drawn cosine-weighted over the cap up to max_theta_deg."""
+    c2 = np.cos(np.radians(max_theta_deg)) ** 2
+    # cos^2(theta) uniform in [cos^2(max), 1] is the cosine-weighted distribution restricted to the cap.
+    out: Array = np.degrees(np.arccos(np.sqrt(rng.uniform(c2, 1.0, n))))
+    return out
+
+
 def error_pairs(n: int = 4000, *, max_theta_deg: float = 80.0, seed: int = 12345, isotropic: bool = True) -> ErrorPairs:
     """n cosine-distributed pairs with zeniths up to max_theta_deg (deg); phi_i = 0 for isotropic materials."""
     if n < 1 or not 0.0 < max_theta_deg <= 90.0:
         raise FitError(f"error_pairs: need n >= 1 and 0 < max_theta_deg <= 90; got n = {n}, {max_theta_deg}")
     rng = np.random.default_rng(seed)
-    c2 = np.cos(np.radians(max_theta_deg)) ** 2
-    # cos^2(theta) uniform in [cos^2(max), 1] is the cosine-weighted distribution restricted to the cap.
-    th_i, th_o = (np.degrees(np.arccos(np.sqrt(rng.uniform(c2, 1.0, n)))) for _ in range(2))
+    th_i, th_o = cosine_zeniths(rng, n, max_theta_deg), cosine_zeniths(rng, n, max_theta_deg)
     ph_i = np.zeros(n) if isotropic else rng.uniform(0.0, 360.0, n)
     ph_o = rng.uniform(0.0, 360.0, n)
     return ErrorPairs(degrees_to_vector(th_i, ph_i), degrees_to_vector(th_o, ph_o), max_theta_deg)

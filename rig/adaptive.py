@@ -31,7 +31,16 @@ import numpy as np
 import numpy.typing as npt
 
 from model.fit import FitResult, fit
-from model.fit_design import ErrorPairs, choose_batch, covariance, error_pairs, error_weight, fisher, sensitivities
+from model.fit_design import (
+    ErrorPairs,
+    choose_batch,
+    cosine_zeniths,
+    covariance,
+    error_pairs,
+    error_weight,
+    fisher,
+    sensitivities,
+)
 from model.fit_samples import FitError, Samples
 from model.fit_select import default_ladder, select
 from model.fit_spec import FitSpec
@@ -39,7 +48,7 @@ from model.geometry import degrees_to_vector
 from rig.config import RigConfig, parse, sweep_config
 from rig.config_schema import SweepFile
 from rig.kinematics import solve_degrees
-from rig.sweeps import half_diff_to_directions
+from rig.sweeps import directions_to_half_diff, half_diff_to_directions
 
 FloatArray = npt.NDArray[np.float64]
 #: Relative noise assumed where a fitted value is below this fraction of the median (keeps sigma > 0).
@@ -101,8 +110,7 @@ def candidate_points(geometry: Any, n: int, *, max_theta_deg: float = 80.0, seed
     """Up to n reachable isotropic candidates (N, 4) in degrees: half cosine-random, half near-specular."""
     rng = np.random.default_rng(seed)
     m = n // 2
-    c2 = np.cos(np.radians(max_theta_deg)) ** 2
-    ti, to = (np.degrees(np.arccos(np.sqrt(rng.uniform(c2, 1.0, n - m)))) for _ in range(2))
+    ti, to = (cosine_zeniths(rng, n - m, max_theta_deg) for _ in range(2))
     body = np.stack([ti, np.zeros(n - m), to, rng.uniform(0.0, 180.0, n - m)], axis=-1)
     # theta_h = 90 u^2 puts half the lobe candidates within 22.5 deg of the mirror direction.
     hd = half_diff_to_directions(90.0 * rng.uniform(0, 1, m) ** 2, rng.uniform(0.0, max_theta_deg, m),
@@ -119,8 +127,6 @@ def candidate_points(geometry: Any, n: int, *, max_theta_deg: float = 80.0, seed
 
 def space_filling(points_deg: FloatArray, k: int) -> npt.NDArray[np.intp]:
     """k indices of points spread over (theta_h, theta_d, phi_d) by farthest-point selection."""
-    from rig.sweeps import directions_to_half_diff
-
     hd = directions_to_half_diff(points_deg)
     x = np.stack([hd[:, 0] / 90.0, hd[:, 1] / 90.0, np.abs(hd[:, 2]) / 180.0], axis=-1)
     picked = [int(np.argmin(hd[:, 0] + hd[:, 1]))]
@@ -166,10 +172,11 @@ def _fit(samples: Samples, spec: FitSpec | None, starts: int, seed: int) -> tupl
         return sel.chosen, next(s for s in default_ladder() if s.name == sel.chosen_name)
 
 
-def _measure(rig: RigConfig, points: FloatArray, out: Path, snr: float) -> tuple[list[dict[str, Any]], float]:
+def measure_points(rig: RigConfig, points: FloatArray, out: Path, snr: float) -> tuple[list[dict[str, Any]], float]:
+    """Run the points (N, 4) in degrees as a list sweep into ``out``: the table's rows and the rig time (s)."""
     from rig.session import start_run
 
-    table = {"name": f"adaptive {out.name}", "sweep": {"kind": "list", "points": points.tolist()},
+    table = {"name": f"list sweep {out.name}", "sweep": {"kind": "list", "points": points.tolist()},
              "capture": {"target_snr": snr}}  # fmt: skip
     sweep = sweep_config(parse(table, SweepFile, f"<{out.name}>"), f"<{out.name}>")
     summary = start_run(rig, sweep, out, progress=False)
@@ -205,7 +212,7 @@ def run_adaptive(
     while True:
         r = len(result.rounds)
         directory = out / f"round-{r:02d}"
-        new_rows, rig_s = _measure(rig, pool[todo], directory, s.target_snr)
+        new_rows, rig_s = measure_points(rig, pool[todo], directory, s.target_snr)
         pool = np.delete(pool, todo, axis=0)
         rows += [{**row, "round": r} for row in new_rows]
         samples = Samples.from_table_rows(rows, source=str(out))
