@@ -15,10 +15,10 @@ import os
 import re
 from collections.abc import Mapping
 from html import escape
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 from model.fit import FitResult
+from model.version import gonio_version
 from rig.analyze import Analysis, write_atomic
 from rig.report_plots import Figures
 
@@ -140,12 +140,6 @@ def _figures(figs: Figures) -> str:
     return "".join(parts)
 
 
-def _gonio_version() -> str:
-    try:
-        return version("gonio")
-    except PackageNotFoundError:
-        return "unknown"
-
 
 _EXPORT_LABELS = {
     "material": "gonio model (JSON, model.serialize)",
@@ -181,7 +175,7 @@ def render_html(a: Analysis, figs: Figures, exports: Mapping[str, Path] | None =
         "<h2>Warnings</h2>", f"<ul>{warns}</ul>" if warns else "<p>None.</p>",
         "<h2>Figures</h2>", _figures(figs),
         "<h2>Coverage of the BRDF domain</h2>", f"<p>{escape(figs.coverage.text())}</p>",
-        f'<p class="muted">gonio {escape(_gonio_version())}; fit.json holds every number of this page.</p>',
+        f'<p class="muted">gonio {escape(gonio_version())}; fit.json holds every number of this page.</p>',
     ]  # fmt: skip
     return (
         f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>gonio analysis: {escape(name)}'

@@ -25,13 +25,13 @@ import socket
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from datetime import UTC, datetime
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, Self
 
 from numpy.typing import ArrayLike
 
 from acquisition.atomic import atomic_path
+from model.version import gonio_version
 from rig.store_formats import Float32Array, csv_text, jsonable, parse_journal, read_exr, write_exr
 
 FORMAT = "gonio-run/1"
@@ -60,12 +60,6 @@ class RunStoreWarning(UserWarning):
 def _utc_now() -> str:
     return datetime.now(UTC).isoformat()
 
-
-def _gonio_version() -> str:
-    try:
-        return version("gonio")
-    except PackageNotFoundError:
-        return "unknown"
 
 
 def _fsync_dir(path: Path) -> None:
@@ -113,7 +107,7 @@ class RunStore:
         doc = _plain(manifest, "manifest", run / MANIFEST)
         if not isinstance(doc, dict) or any(k in doc for k in _RESERVED):
             raise RunStoreError(f"{run / MANIFEST}: expected a mapping without the keys {_RESERVED} (set here)")
-        doc.update(format=FORMAT, created_utc=_utc_now(), gonio_version=_gonio_version())
+        doc.update(format=FORMAT, created_utc=_utc_now(), gonio_version=gonio_version())
         missing = [p for p in (run, *run.parents) if not p.exists()]
         try:
             run.mkdir(parents=True, exist_ok=True)

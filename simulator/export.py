@@ -33,7 +33,6 @@ from __future__ import annotations
 import copy
 import json
 import os
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 from xml.sax.saxutils import quoteattr
@@ -47,6 +46,7 @@ from model.integrate import directional_albedo
 from model.merl import MerlTable, write_merl
 from model.metal_roughness_fit import gltf_material, to_metal_roughness
 from model.serialize import to_json_dict
+from model.version import gonio_version
 from simulator import mitsuba_bsdf
 from simulator.materials import to_mitsuba
 
@@ -160,13 +160,6 @@ def _scene_file(fragment: str, name: str) -> str:
     )  # fmt: skip
 
 
-def _version() -> str:
-    try:
-        return metadata.version("gonio")
-    except metadata.PackageNotFoundError:
-        return "unknown"
-
-
 def material_facts(model: BRDF) -> dict[str, Any]:
     """What holds for the model whatever it was fitted to: channels, physics promises, albedo, Mitsuba path."""
     mat = to_mitsuba(model)
@@ -217,7 +210,7 @@ def export_material(
         **to_json_dict(model),
         "conventions": CONVENTIONS,
         "facts": material_facts(model),
-        "generator": f"gonio {_version()}",
+        "generator": f"gonio {gonio_version()}",
     }
     texts = {
         "material": _json_text(material),
