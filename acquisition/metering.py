@@ -6,6 +6,7 @@ enough, then the last unclipped frame's level is handed to ``plan_exposure``.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -53,6 +54,8 @@ def meter(
 ) -> MeterResult:
     """Plan from test frames: ``take_roi(exposure_s)`` returns the ROI's pixels in counts above black.
 
+    The pixels are (N,), (H, W) or (H, W, C) for colour frames; the SNR target is each channel's ROI mean.
+
     The first test exposure is ``start_exposure_s``, or the metered frame of ``predicted`` (a model's
     prediction or the previous point's level, counts/s at gain 1). A test frame with a clipped pixel is
     retaken ``step_factor`` shorter. One whose peak is below 1 % of saturation (per-pixel SNR ~25 at the
@@ -92,6 +95,10 @@ def meter(
             continue
         clipped = False
         level = RoiLevel.from_pixels((counts / t - dr) / cam.gain)
+        if counts.ndim == 3:
+            # (H, W, C): each channel's ROI mean averages H*W pixels, not H*W*C; counting the channels as
+            # pixels would promise sqrt(C) more SNR than the plan delivers.
+            level = dataclasses.replace(level, n_pixels=counts.shape[0] * counts.shape[1])
         peak_signal = float(counts.max())
         if peak_signal < 0.01 * sat and t < cam.max_exposure_s:
             longer = cam.floor(min(t * safety * sat / max(peak_signal, 1.0), cam.max_exposure_s))

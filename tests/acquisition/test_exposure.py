@@ -297,3 +297,16 @@ def test_zero_light_and_bad_inputs():
     with pytest.raises(ValueError, match="steps"):
         CameraTiming(min_exposure_s=1.0, max_exposure_s=2.0, steps=[0.1, 5.0])
     assert math.isnan(evaluate_plan(RoiLevel.uniform(1.0), NOISE, [1.0]).target_snr)
+
+
+def test_meter_counts_pixels_not_pixels_times_channels_in_a_colour_roi():
+    # A 4x4 RGB ROI: each channel's mean averages 16 pixels. Counting 48 planned a third of the exposure
+    # and delivered SNR target / sqrt(3) (the first reference reading of every run came out at 230 for 400).
+    rng = np.random.default_rng(7)
+    rates = np.full((4, 4, 3), 1.5e5)
+    res = meter(_camera(rates, rng), NOISE, 400.0, start_exposure_s=0.01)
+    assert res.level.n_pixels == 16
+    counts, _ = simulate(rates, res.plan.exposures_s, NOISE, rng, 400)  # 400 repeats of the planned bracket
+    roi_means = (counts.sum(axis=1) / sum(res.plan.exposures_s)).mean(axis=(1, 2))  # (repeats, channel)
+    snr = roi_means.mean(axis=0) / roi_means.std(axis=0)
+    assert np.all(snr > 0.85 * 400.0), snr
