@@ -19,6 +19,7 @@ Written to OUT: ``samples.csv`` (every round's table rows, with a ``round`` colu
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import sys
 import warnings
@@ -184,6 +185,19 @@ def measure_points(rig: RigConfig, points: FloatArray, out: Path, snr: float) ->
         return list(csv.DictReader(fh)), summary.rig_time_s
 
 
+def round_rig(rig: RigConfig, index: int) -> RigConfig:
+    """The rig of round ``index``: the simulation's noise seed mixed with the round (a real rig ignores it).
+
+    Each round is its own run, and the simulator draws noise per (seed, state, reference slot): with one seed,
+    every round's first reference reading would repeat round 0's draw, and a real camera never does that.
+    """
+    sim = rig.file.simulation
+    if index == 0:
+        return rig
+    sim = sim.model_copy(update={"seed": (sim.seed * 1_000_003 + index) % 2**63})
+    return dataclasses.replace(rig, file=rig.file.model_copy(update={"simulation": sim}))
+
+
 def run_adaptive(
     rig: RigConfig,
     out: str | Path,
@@ -212,7 +226,7 @@ def run_adaptive(
     while True:
         r = len(result.rounds)
         directory = out / f"round-{r:02d}"
-        new_rows, rig_s = measure_points(rig, pool[todo], directory, s.target_snr)
+        new_rows, rig_s = measure_points(round_rig(rig, r), pool[todo], directory, s.target_snr)
         pool = np.delete(pool, todo, axis=0)
         rows += [{**row, "round": r} for row in new_rows]
         samples = Samples.from_table_rows(rows, source=str(out))

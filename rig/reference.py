@@ -21,8 +21,8 @@ class ReferenceTarget(Protocol):
         """What the reference is (for the journal and the manifest)."""
         ...
 
-    def present(self) -> None:
-        """Put the reference where the sample is; returns once it is in place."""
+    def present(self, slot: int) -> None:
+        """Put the reference where the sample is for reading ``slot`` (its place in the plan); returns once in place."""
         ...
 
     def withdraw(self) -> None:
@@ -42,10 +42,10 @@ class ManualReference:
         """What the reference is."""
         return self._description
 
-    def present(self) -> None:
-        """Ask the operator to place the reference tile and wait for Enter."""
+    def present(self, slot: int) -> None:
+        """Ask the operator to place the reference tile (for the reading before point ``slot``) and wait for Enter."""
         print("\a", end="", file=sys.stderr)
-        self._ask("Place the reference tile on the stage, then press Enter: ")
+        self._ask(f"Reference reading before point {slot}: place the reference tile on the stage, then press Enter: ")
 
     def withdraw(self) -> None:
         """Ask the operator to put the sample back and wait for Enter."""

@@ -233,7 +233,7 @@ class Runner:
         assert self.reference is not None and self.target is not None
         ref = self.reference
         self._move(ref.joints)
-        self.target.present()
+        self.target.present(slot)
         try:
             previous = Level.from_dict(last["level"]) if last is not None else None
             snr = ref.target_snr or self.capture.target_snr

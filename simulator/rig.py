@@ -112,6 +112,7 @@ class SimulatedRig:
         self.renders = 0
         self.reference = SimulatedReference(self)
         self._showing: Model = self.spec.material
+        self._reading: int | None = None
         self._shown: MitsubaMaterial = self.material
         self._reference_material = to_mitsuba(Lambert(self.spec.reference_albedo))
 
@@ -174,8 +175,15 @@ class SimulatedRig:
         values = {a.name: a.to_degrees(self.bus.servo(int(a.address)).physical_position_ticks()) for a in self.axes}
         return Joints.from_dict(values)
 
-    def show(self, reference: bool) -> None:
-        """Put the reference tile (True) or the sample (False) in view of the camera."""
+    def show(self, reference: bool, reading: int | None = None) -> None:
+        """Put the reference tile (True) or the sample (False) in view of the camera.
+
+        ``reading`` names the reference reading (the runner's slot). Noise is drawn per state, and the tile at
+        the reference pose is the same state every time: without it every reference reading of a run would
+        repeat one noise draw, and the run's calibration could never average down. A slot, not a count of
+        presentations, keeps a resumed run's readings equal to an uninterrupted run's.
+        """
+        self._reading = reading if reference else None
         if reference:
             self._showing, self._shown = Lambert(self.spec.reference_albedo), self._reference_material
         else:
@@ -184,7 +192,8 @@ class SimulatedRig:
     def _state_key(self) -> tuple[object, ...]:
         assert self.bus is not None
         ticks = tuple(round(self.bus.servo(int(a.address)).physical_position_ticks(), 3) for a in self.axes)
-        return (ticks, repr(self._showing))
+        key = (ticks, repr(self._showing))
+        return key if self._reading is None else (*key, self._reading)
 
     def radiance_now(self, full_frame: bool = False) -> npt.NDArray[np.float64]:
         """Radiance (W/(m^2 sr)) the camera sees now (the ROI, or the whole frame), from the servos' physical pose."""
@@ -211,9 +220,9 @@ class SimulatedReference:
         """The tile and its albedo."""
         return f"simulated Lambertian tile, albedo {self._rig.spec.reference_albedo!r}"
 
-    def present(self) -> None:
-        """Swap the reference tile in."""
-        self._rig.show(True)
+    def present(self, slot: int) -> None:
+        """Swap the reference tile in for the run's reading ``slot``."""
+        self._rig.show(True, reading=slot)
 
     def withdraw(self) -> None:
         """Swap the sample back in."""

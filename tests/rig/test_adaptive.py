@@ -80,5 +80,9 @@ def test_an_adaptive_sweep_runs_rounds_refits_and_lowers_its_predicted_error(tmp
     assert np.mean(directions_to_half_diff(later)[:, 0] < 10.0) >= 0.3
     doc = json.loads((tmp_path / "ad" / "adaptive.json").read_text())
     assert [d["captures"] for d in doc["rounds"]] == [12, 22, 32]
+    # Each round is its own run with its own noise: the rounds' first reference readings are distinct draws.
+    firsts = {tuple(next(json.loads(line) for line in open(r.directory / "journal.jsonl")
+                         if '"reference"' in line)["reading"]) for r in result.rounds}  # fmt: skip
+    assert len(firsts) == 3
     with pytest.raises(ValueError, match="not empty"):
         run_adaptive(rig, tmp_path / "ad", lambert_ggx("dielectric"), settings)

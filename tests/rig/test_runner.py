@@ -240,3 +240,21 @@ def test_a_bracket_planned_from_a_dark_point_that_clips_at_a_glossy_peak_is_mete
     assert np.all(np.abs(got - truth) < 4.5 * se), (got - truth) / se
     events = [r for r in RunStore.read(tmp_path / "run").records() if r["kind"] == "point"]
     assert any("metered afresh" in n for n in events[1]["notes"]), events[1]
+
+
+def test_reference_readings_of_a_run_are_independent_draws(tmp_path: Path) -> None:
+    # The tile at the reference pose is one state; the simulator draws noise per state, so each reading
+    # needs its own slot in the key, or all of a run's references repeat one draw and never average down.
+    rig = sim_rig(reference={"every": 1, "target_snr": 100.0})
+    # A fixed bracket: the same exposures every time, so only the noise can tell the readings apart.
+    sweep = in_plane_sweep([20.0], [-40.0, -20.0, 10.0, 30.0, 50.0, 60.0, 70.0], exposures_s=[0.02, 0.005])
+    summary = start_run(rig, sweep, tmp_path / "run", progress=False)
+    later = [r for r in RunStore.read(tmp_path / "run").records() if r["kind"] == "reference"]
+    assert summary.references == len(later) >= 6
+    assert len({tuple(r["exposures_s"]) for r in later}) == 1
+    reading = np.array([r["reading"] for r in later])
+    se = np.array([r["reading_std_error"] for r in later])
+    assert len({tuple(row) for row in reading}) == len(later)
+    # Scatter between readings as their own errors predict (chi2 with (n - 1) x 3 degrees of freedom).
+    chi2, dof = float(np.sum(((reading - reading.mean(axis=0)) / se) ** 2)), 3 * (len(later) - 1)
+    assert 0.25 * dof < chi2 < 2.5 * dof, (chi2, dof)
