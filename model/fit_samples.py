@@ -149,8 +149,21 @@ class Samples:
         return cls(wi[keep], wo[keep], v[keep], se[keep], lower[keep], False, tuple(notes), source)
 
     @classmethod
-    def from_table_rows(cls, rows: Sequence[Mapping[str, Any]], source: str = "") -> Samples:
-        """Samples from a run table's rows (rig/table.py columns, degrees; strings as read from CSV accepted)."""
+    def from_table_rows(
+        cls, rows: Sequence[Mapping[str, Any]], source: str = "", *, errors: str = "total"
+    ) -> Samples:
+        """Samples from a run table's rows (rig/table.py columns, degrees; strings as read from CSV accepted).
+
+        ``errors``: "total" takes ``brdf_se_*`` (the point's reading, the references' and the tile albedo's
+        errors); "point" takes the point's own reading error only (``reading_se / reading`` times the BRDF).
+        The calibration's share is common to every point between two references (the albedo's to the whole
+        run): it moves all values together, so it says nothing about a lobe's shape, and counted per point
+        it drowns the difference between a capture at SNR 300 and one at SNR 100 and pushes chi2/dof far
+        below 1. Fit with "point" to weight captures by what they measured; the scale is then uncertain by
+        the calibration's error on top of the fit's.
+        """
+        if errors not in ("total", "point"):
+            raise FitError(f"{source or 'table'}: errors = {errors!r}: expected 'total' or 'point'")
         if not rows:
             raise FitError(f"{source or 'table'}: no rows to fit")
         chans = [c for c in CHANNELS if f"brdf_{c}" in rows[0]]
@@ -160,6 +173,14 @@ class Samples:
                 ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg")}  # fmt: skip
         value = np.stack([[_num(r.get(f"brdf_{c}")) for r in rows] for c in chans], axis=-1)
         se = np.stack([[_num(r.get(f"brdf_se_{c}")) for r in rows] for c in chans], axis=-1)
+        if errors == "point":
+            missing = [k for c in chans for k in (f"reading_{c}", f"reading_se_{c}") if k not in rows[0]]
+            if missing:
+                raise FitError(f"{source or 'table'}: errors = 'point' needs the columns {missing}")
+            reading = np.stack([[_num(r.get(f"reading_{c}")) for r in rows] for c in chans], axis=-1)
+            reading_se = np.stack([[_num(r.get(f"reading_se_{c}")) for r in rows] for c in chans], axis=-1)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                se = np.abs(value) * reading_se / np.abs(reading)
         lower = np.array([_flag(r.get("lower_bound", False)) for r in rows])
         with_cos = np.array([_flag(r.get("includes_cosine", False)) for r in rows])
         return cls.from_arrays(

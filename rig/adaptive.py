@@ -229,7 +229,9 @@ def run_adaptive(
         new_rows, rig_s = measure_points(round_rig(rig, r), pool[todo], directory, s.target_snr)
         pool = np.delete(pool, todo, axis=0)
         rows += [{**row, "round": r} for row in new_rows]
-        samples = Samples.from_table_rows(rows, source=str(out))
+        # Weighted by each capture's own error: the design trades SNR against position, and the common
+        # calibration share would hide what a better capture buys.
+        samples = Samples.from_table_rows(rows, source=str(out), errors="point")
         try:
             res, used = _fit(samples, spec, s.starts, s.seed)
         except FitError as exc:

@@ -221,6 +221,22 @@ def test_table_rows_and_csv_convert_degrees_and_the_cosine(tmp_path: Path) -> No
         assert any("below the horizon" in note for note in s.notes)
 
 
+def test_point_errors_leave_out_the_calibration_share() -> None:
+    # A run's table: brdf_se holds the point's reading, the references' and the albedo's errors;
+    # errors="point" keeps the point's own relative reading error only.
+    row: dict[str, Any] = {"theta_i_deg": 20.0, "phi_i_deg": 0.0, "theta_o_deg": 30.0, "phi_o_deg": 180.0,
+                           "lower_bound": False, "reading_se_r": 2.0, "reading_se_g": 6.0, "reading_se_b": 20.0}
+    for c in "rgb":
+        row |= {f"brdf_{c}": 0.1, f"brdf_se_{c}": 0.0007, f"reading_{c}": 2000.0}
+    total, point = Samples.from_table_rows([row]), Samples.from_table_rows([row], errors="point")
+    assert np.allclose(total.std_error, 0.0007)
+    assert np.allclose(point.std_error, [[1e-4, 3e-4, 1e-3]])
+    with pytest.raises(FitError, match="reading_se_r"):
+        Samples.from_table_rows([{k: v for k, v in row.items() if k != "reading_se_r"}], "t.csv", errors="point")
+    with pytest.raises(FitError, match="'total' or 'point'"):
+        Samples.from_table_rows([row], errors="readings")
+
+
 def test_from_merl_subsamples_a_table_and_recovers_its_model() -> None:
     table = MerlTable.from_model(PLASTIC)
     s = Samples.from_merl(table, 2000, seed=0, relative_error=0.05)
