@@ -112,6 +112,8 @@ class Analysis:
     references: tuple[Reference, ...]
     loss: str
     starts: int
+    #: "total" (every error in the table) or "point" (each capture's own reading error): see Samples.from_table_rows.
+    errors: str = "total"
 
     @property
     def chosen(self) -> Candidate:
@@ -149,7 +151,7 @@ def _describe_material(table: Any) -> str:
     return f"{table.model}({params})"
 
 
-def _load_run(path: Path, log: Log) -> tuple[SourceSummary, Samples, list[Reference]]:
+def _load_run(path: Path, log: Log, errors: str = "total") -> tuple[SourceSummary, Samples, list[Reference]]:
     try:
         store = RunStore.read(path)
         status = store.status()
@@ -170,7 +172,7 @@ def _load_run(path: Path, log: Log) -> tuple[SourceSummary, Samples, list[Refere
     if not rows:
         raise AnalysisError(f"{path}: no measured points to analyse (journal {path / JOURNAL} holds none)")
     try:
-        samples = Samples.from_table_rows(rows, source=str(path))
+        samples = Samples.from_table_rows(rows, source=str(path), errors=errors)
     except FitError as exc:
         raise AnalysisError(f"{path}: cannot read the samples: {exc}") from exc
     refs, material = [], None
@@ -257,10 +259,15 @@ def load_and_fit(
     seed: int = 0,
     compare: str | Path | None = None,
     log: Log | None = None,
+    errors: str = "total",
 ) -> Analysis:
     """Load a run directory or a MERL file (``samples`` random bins), fit the ladder and choose a model."""
     say = log or (lambda _: None)
     path = Path(source)
+    if errors not in ("total", "point"):
+        raise AnalysisError(f"--errors {errors!r}: expected 'total' or 'point'")
+    if errors == "point" and path.is_file():
+        raise AnalysisError(f"--errors point: {path} is a MERL file, which has no readings (its errors are assumed)")
     if loss not in LOSSES:
         raise AnalysisError(f"--loss {loss!r}: expected one of {', '.join(LOSSES)}")
     if starts < 1:
@@ -277,7 +284,7 @@ def load_and_fit(
     ladder = tuple(default_ladder() if models is None else models)
     with warnings.catch_warnings(record=True) as got:
         warnings.simplefilter("always")
-        summary, data, refs = _load_run(path, say) if path.is_dir() else _load_merl(path, n, seed, say)
+        summary, data, refs = _load_run(path, say, errors) if path.is_dir() else _load_merl(path, n, seed, say)
         if compare is not None:
             refs.append(Reference(f"MERL reference {Path(compare).name}", _read_merl(Path(compare), "--compare")))
     loaded = [f"{w.category.__name__}: {w.message}" for w in got]
@@ -286,7 +293,7 @@ def load_and_fit(
     except FitError as exc:
         raise AnalysisError(f"{path}: cannot fit: {exc}") from exc
     return Analysis(summary, data, ladder, selection, times, tuple(dict.fromkeys(loaded + caught)), tuple(refs),
-                    loss, starts)  # fmt: skip
+                    loss, starts, errors)  # fmt: skip
 
 
 def model_json(model: Model) -> dict[str, Any]:
@@ -325,8 +332,9 @@ def fit_json(a: Analysis) -> dict[str, Any]:
             }  # fmt: skip
         cands.append(doc)
     return _plain({
-        "source": a.source.as_dict(), "loss": a.loss, "starts": a.starts, "criterion": sel.criterion,
-        "n_samples": a.samples.n, "chosen": sel.chosen_name, "reason": sel.reason, "candidates": cands,
+        "source": a.source.as_dict(), "loss": a.loss, "errors": a.errors, "starts": a.starts,
+        "criterion": sel.criterion, "n_samples": a.samples.n, "chosen": sel.chosen_name, "reason": sel.reason,
+        "candidates": cands,
         "model": model_json(sel.chosen.model), "warnings": list(a.warnings),
     })  # fmt: skip
 
@@ -380,10 +388,11 @@ def analyze(
     y_scale: str = "auto",
     merl: bool = False,
     log: Log | None = None,
+    errors: str = "total",
 ) -> Path:
     """Analyse a run directory or MERL file into ``out`` (default: see default_out); returns index.html's path."""
     a = load_and_fit(source, models=models, loss=loss, starts=starts, samples=samples, seed=seed, compare=compare,
-                     log=log)  # fmt: skip
+                     log=log, errors=errors)  # fmt: skip
     return write_report(a, default_out(source) if out is None else out, y_scale=y_scale, merl=merl, log=log)
 
 

@@ -32,7 +32,7 @@ def _analyze(args: argparse.Namespace) -> int:
     log = None if args.quiet else stderr_log
     models = parse_models(args.models) if args.models else None
     a = load_and_fit(args.source, models=models, loss=args.loss, starts=args.starts, samples=args.samples,
-                     seed=args.seed, compare=args.compare, log=log)  # fmt: skip
+                     seed=args.seed, compare=args.compare, log=log, errors=args.errors)  # fmt: skip
     page = write_report(a, args.out or default_out(args.source), y_scale=args.y_scale, merl=args.merl, log=log)
     print(page)
     print(a.verdict())
@@ -56,6 +56,10 @@ def add_analyze_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser])
                    f"ward); known: {_MODELS_HELP}")  # fmt: skip
     # No `choices` from model.fit: importing it (scipy) would slow every gonio command; analyze checks the name.
     p.add_argument("--loss", default="l2", help="fit loss: l2 (default, chi-square), cosine_l2, log or cbrt")
+    p.add_argument("--errors", default="total", choices=("total", "point"),
+                   help="sample weights: total (default; each value's whole error, calibration included) or point "
+                   "(each capture's own reading error: chi2 then tests the model against the capture noise, and the "
+                   "scale carries the calibration's error on top)")
     p.add_argument("--starts", type=_positive, default=4, help="optimiser starts per candidate (default 4)")
     p.add_argument("--samples", type=_positive, help="MERL bins drawn at random (MERL source only; default 20000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the MERL subsample and the random starts (default 0)")

@@ -101,6 +101,20 @@ def test_the_fit_recovers_the_simulated_gold_roughness(gold_report: tuple[Analys
 
 
 @pytest.mark.mitsuba
+def test_point_errors_weight_by_the_capture_noise_and_say_so(gold_run: Path, tmp_path: Path) -> None:
+    # The table's brdf_se holds the calibration's share (albedo 0.5 %, references), common to every point;
+    # counted per point it pushes chi2/dof well below 1. The capture's own errors test the model against its noise.
+    ladder = parse_models("ggx_conductor")
+    total = load_and_fit(gold_run, models=ladder).selection.chosen
+    point = load_and_fit(gold_run, models=ladder, errors="point").selection.chosen
+    assert point.reduced_chi2 > 1.5 * total.reduced_chi2 and abs(point.reduced_chi2 - 1) < abs(total.reduced_chi2 - 1)
+    assert point.param("alpha")[1] < total.param("alpha")[1]
+    assert abs(point.param("alpha")[0] - GOLD["alpha"]) < 4 * point.param("alpha")[1] + 1e-4
+    page = analyze(gold_run, tmp_path / "report", models=ladder, errors="point")
+    assert fit_doc(page.parent)["errors"] == "point"
+
+
+@pytest.mark.mitsuba
 def test_the_ladder_chooses_exactly_as_select_does(gold_report: tuple[Analysis, Path]) -> None:
     a, _ = gold_report
     ref = select(a.samples, list(a.ladder), loss=a.loss, starts=a.starts)
@@ -196,8 +210,9 @@ def short_file(d: Path) -> Path:
         (short_file, [], "header dimensions (0, 0, 0), expected (90, 90, 180) (SOURCE: expected a MERL", True),
         (short_file, ["--models", "lambert,phong"], "unknown model 'phong'", False),
         (short_file, ["--loss", "l3"], "--loss 'l3': expected one of l2, cosine_l2, log, cbrt", False),
+        (short_file, ["--errors", "point"], "is a MERL file, which has no readings", True),
     ],
-    ids=["missing", "not-a-run", "bad-merl", "unknown-model", "bad-loss"],
+    ids=["missing", "not-a-run", "bad-merl", "unknown-model", "bad-loss", "point-errors-of-merl"],
 )
 def test_bad_input_is_exit_code_2_naming_what_was_wrong(make, extra, expected, names_source, tmp_path, capsys) -> None:
     source = make(tmp_path)
