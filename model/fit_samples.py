@@ -180,7 +180,9 @@ class Samples:
             reading = np.stack([[_num(r.get(f"reading_{c}")) for r in rows] for c in chans], axis=-1)
             reading_se = np.stack([[_num(r.get(f"reading_se_{c}")) for r in rows] for c in chans], axis=-1)
             with np.errstate(divide="ignore", invalid="ignore"):
-                se = np.abs(value) * reading_se / np.abs(reading)
+                # A zero reading has a zero BRDF, and then the calibration's terms (relative, times the value)
+                # vanish: its total error is its own, exactly.
+                se = np.where(reading != 0, np.abs(value) * reading_se / np.abs(reading), se)
         lower = np.array([_flag(r.get("lower_bound", False)) for r in rows])
         with_cos = np.array([_flag(r.get("includes_cosine", False)) for r in rows])
         return cls.from_arrays(

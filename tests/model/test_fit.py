@@ -231,6 +231,8 @@ def test_point_errors_leave_out_the_calibration_share() -> None:
     total, point = Samples.from_table_rows([row]), Samples.from_table_rows([row], errors="point")
     assert np.allclose(total.std_error, 0.0007)
     assert np.allclose(point.std_error, [[1e-4, 3e-4, 1e-3]])
+    dark = {**row, "brdf_b": 0.0, "reading_b": 0.0, "brdf_se_b": 0.0004}  # nothing read in blue: se is its own
+    assert np.allclose(Samples.from_table_rows([dark], errors="point").std_error, [[1e-4, 3e-4, 4e-4]])
     with pytest.raises(FitError, match="reading_se_r"):
         Samples.from_table_rows([{k: v for k, v in row.items() if k != "reading_se_r"}], "t.csv", errors="point")
     with pytest.raises(FitError, match="'total' or 'point'"):
