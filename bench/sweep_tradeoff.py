@@ -18,7 +18,7 @@ reaches the dense grid's error with at most 100 captures.
 Rig time is the simulated clock: moves at the servos' programmed speeds, settling, exposures, reference
 readings. Each adaptive round is its own run, with its own references before and after.
 
-Run: ``.venv/bin/python -m bench.sweep_tradeoff [--quick] [--seeds N] [--no-write]`` (about 4 minutes per
+Run: ``.venv/bin/python -m bench.sweep_tradeoff [--quick] [--seeds N] [--no-write]`` (about 3 minutes per
 seed on 2 cores; ``--quick --seeds 1`` about 1). Prints a table per material, writes the ``sweep_tradeoff`` section of
 docs/benchmarks.md and docs/figures/sweep_tradeoff.png.
 """
