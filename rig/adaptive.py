@@ -191,9 +191,9 @@ def round_rig(rig: RigConfig, index: int) -> RigConfig:
     Each round is its own run, and the simulator draws noise per (seed, state, reference slot): with one seed,
     every round's first reference reading would repeat round 0's draw, and a real camera never does that.
     """
-    sim = rig.file.simulation
     if index == 0:
         return rig
+    sim = rig.file.simulation
     sim = sim.model_copy(update={"seed": (sim.seed * 1_000_003 + index) % 2**63})
     return dataclasses.replace(rig, file=rig.file.model_copy(update={"simulation": sim}))
 
