@@ -1,8 +1,10 @@
 """One reading of whatever the camera sees: plan the exposures, capture the bracket and darks, merge, reduce.
 
-The exposure plan comes from the previous point's light level (a ``RoiLevel`` rebuilt from the four numbers
-the journal keeps, so a resumed run plans exactly what an uninterrupted one did) or, with no level yet or
-when the planned bracket clipped, from metering test frames. A fixed list of exposures skips planning.
+The exposure plan comes from the previous point's light level (``RoiLevel`` per colour channel, rebuilt from
+the numbers the journal keeps, so a resumed run plans exactly what an uninterrupted one did) or, with no
+level yet or when the planned bracket clipped, from metering test frames. A fixed list of exposures skips
+planning. The previous point only predicts this one's level: where this point turns out darker and its
+dimmest channel falls short of the SNR goal, a second bracket planned from its own level tops it up.
 """
 
 from __future__ import annotations
@@ -38,27 +40,41 @@ class CaptureSettings:
     roi: Box | None = None
 
 
+#: A reading whose dimmest channel reaches less than this fraction of the SNR goal is topped up.
+TOP_UP_BELOW = 0.95
+
+
 @dataclass(frozen=True)
 class Level:
-    """An ROI's light level in counts/s at gain 1 (peak, mean, darkest pixel) over ``n_pixels`` pixels."""
+    """An ROI's light level in counts/s at gain 1 (peak, mean, darkest pixel) over ``n_pixels`` pixels.
+
+    ``channel_means`` holds each colour channel's ROI mean (counts/s); empty for a grey frame or a journal
+    written before it was kept, when the overall mean stands in for every channel.
+    """
 
     peak: float
     mean: float
     dark: float
     n_pixels: int
+    channel_means: tuple[float, ...] = ()
 
-    def roi_level(self) -> RoiLevel:
-        """The acquisition module's RoiLevel for planning."""
-        return RoiLevel(self.peak, self.mean, self.n_pixels, self.dark)
+    def roi_level(self) -> list[RoiLevel]:
+        """The acquisition module's RoiLevel per channel for planning (the dimmest sets the SNR)."""
+        means = self.channel_means or (self.mean,)
+        return [RoiLevel(self.peak, m, self.n_pixels, min(self.dark, m)) for m in means]
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form (for the journal)."""
-        return {"peak": self.peak, "mean": self.mean, "dark": self.dark, "n_pixels": self.n_pixels}
+        d: dict[str, Any] = {"peak": self.peak, "mean": self.mean, "dark": self.dark, "n_pixels": self.n_pixels}
+        if self.channel_means:
+            d["channel_means"] = list(self.channel_means)
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Level:
         """Inverse of ``as_dict``."""
-        return cls(float(d["peak"]), float(d["mean"]), float(d["dark"]), int(d["n_pixels"]))
+        means = tuple(float(m) for m in d.get("channel_means", ()))
+        return cls(float(d["peak"]), float(d["mean"]), float(d["dark"]), int(d["n_pixels"]), means)
 
 
 @dataclass(frozen=True)
@@ -111,10 +127,16 @@ def level_of(hdr: HdrImage, roi: Box | None) -> Level:
     """The ROI's level (counts/s) from a merged image: peak, mean and 1st-percentile pixel over channels."""
     rad = _crop(hdr.radiance, roi)
     finite = rad[np.isfinite(rad)]
+    n = int(rad.shape[0] * rad.shape[1])
     if finite.size == 0:
-        return Level(0.0, 0.0, 0.0, int(rad.shape[0] * rad.shape[1]))
-    return Level(float(finite.max()), float(finite.mean()), float(max(np.percentile(finite, 1.0), 0.0)),
-                 int(rad.shape[0] * rad.shape[1]))  # fmt: skip
+        return Level(0.0, 0.0, 0.0, n)
+    means: tuple[float, ...] = ()
+    if rad.ndim == 3 and rad.shape[-1] > 1:
+        # A clipped pixel is not finite; a channel with none left keeps the overall mean, not a NaN.
+        with np.errstate(invalid="ignore"):
+            per = np.nanmean(np.where(np.isfinite(rad), rad, np.nan).reshape(-1, rad.shape[-1]), axis=0)
+        means = tuple(float(m) if np.isfinite(m) else float(finite.mean()) for m in per)
+    return Level(float(finite.max()), float(finite.mean()), float(max(np.percentile(finite, 1.0), 0.0)), n, means)
 
 
 def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | None) -> Reading:
@@ -125,15 +147,16 @@ def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | No
     if previous is not None and previous.peak > 0:
         plan = plan_exposure(previous.roi_level(), settings.noise, settings.target_snr, settings.timing,
                              max_frames=settings.max_frames, dark_frames=settings.dark_frames)  # fmt: skip
+        frames = _frames(camera, plan.exposures_s)
         try:
-            reading = _capture(camera, settings, plan.exposures_s, (), ())
+            reading = _merge(camera, settings, frames, (), (), take_darks=False)
         except RoiError:
             # Every ROI pixel clipped in every frame (a dark point followed by a specular peak): meter.
             notes = ("the bracket planned from the previous point clipped every pixel: metered afresh",)
         else:
             # Clipped pixels would be left out of the mean, and they are the brightest: never keep that.
             if not reading.roi.lower_bound and not np.any(reading.roi.n_flagged):
-                return reading
+                return _topped_up(camera, settings, frames, reading)
             notes = ("the bracket planned from the previous point clipped: metered afresh",)
 
     def take_roi(t: float) -> npt.NDArray[np.float64]:
@@ -145,6 +168,33 @@ def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | No
     return _capture(camera, settings, metered.plan.exposures_s, metered.test_exposures_s, notes + metered.notes)
 
 
+def snr_reached(reading: RoiReading) -> float:
+    """The reading's photon-and-read-noise SNR in its dimmest channel; inf where no channel has noise.
+
+    The propagated error is what exposure controls; the pixel scatter of a small ROI is itself noisy, and
+    where it is real (a gradient across the ROI) more frames would not shrink it.
+    """
+    mean = np.atleast_1d(np.asarray(reading.mean, dtype=np.float64))
+    se = np.atleast_1d(np.asarray(reading.std_error_propagated, dtype=np.float64))
+    ok = se > 0
+    return float(np.min(np.abs(mean[ok]) / se[ok])) if np.any(ok) else float("inf")
+
+
+def _topped_up(camera: Camera, settings: CaptureSettings, frames: list[Frame], first: Reading) -> Reading:
+    """The reading with darks, after a second bracket where the first fell short of the SNR goal."""
+    reached = snr_reached(first.roi)
+    notes: tuple[str, ...] = ()
+    if reached < TOP_UP_BELOW * settings.target_snr and first.level.peak > 0:
+        # Inverse-variance merging adds SNRs in quadrature: plan only the part still missing.
+        missing = float(np.sqrt(settings.target_snr**2 - reached**2))
+        plan = plan_exposure(first.level.roi_level(), settings.noise, missing, settings.timing,
+                             max_frames=settings.max_frames, dark_frames=settings.dark_frames)  # fmt: skip
+        frames = frames + _frames(camera, plan.exposures_s)
+        notes = (f"SNR {reached:.0f} of {settings.target_snr:g} from the bracket planned on the previous point: "
+                 f"topped up with {len(plan.exposures_s)} more frame(s)",)  # fmt: skip
+    return _merge(camera, settings, frames, (), notes, take_darks=True)
+
+
 def _capture(
     camera: Camera,
     settings: CaptureSettings,
@@ -152,9 +202,25 @@ def _capture(
     test: tuple[float, ...],
     notes: tuple[str, ...],
 ) -> Reading:
-    frames = [_shoot(camera, t) for t in exposures]
+    return _merge(camera, settings, _frames(camera, exposures), test, notes, take_darks=True)
+
+
+def _frames(camera: Camera, exposures: tuple[float, ...]) -> list[Frame]:
+    return [_shoot(camera, t) for t in exposures]
+
+
+def _merge(
+    camera: Camera,
+    settings: CaptureSettings,
+    frames: list[Frame],
+    test: tuple[float, ...],
+    notes: tuple[str, ...],
+    *,
+    take_darks: bool,
+) -> Reading:
+    """Merge and reduce the frames; ``take_darks`` False skips the dark frames (a check before a possible top-up)."""
     applied = tuple(f.exposure_s for f in frames)
-    darks, dark_taken = _darks(camera, applied, settings.dark_frames)
+    darks, dark_taken = _darks(camera, applied, settings.dark_frames if take_darks else 0)
     hdr = merge_linear(frames, settings.noise, darks=darks or None)
     h, w = hdr.radiance.shape[:2]
     roi = settings.roi if settings.roi is not None else (0, 0, w, h)
