@@ -62,7 +62,12 @@ class AdaptiveSettings:
 
     budget: captures in all; initial: captures of the first (space-filling) round; batch: captures per
     later round; candidates: pool size before the reachability filter; max_theta_deg: largest zenith
-    (deg) of candidates and of the error pairs; target_snr: the capture's SNR goal; seed: pool and fits.
+    (deg) of candidates and of the error pairs; target_snr: the capture's SNR goal; reference_snr: the
+    reference readings' SNR goal (None: the rig's ``[reference] target_snr``); seed: pool and fits.
+
+    Each round is its own run with a reference reading before and after, so a sweep of 100 takes about 18
+    readings where one run of 1000 at ``every = 25`` takes 42. A matte sample's fit is one scale per channel,
+    i.e. all calibration: the references need SNR x sqrt(42 / 18) to calibrate as well as that long run.
     """
 
     budget: int = 100
@@ -71,6 +76,7 @@ class AdaptiveSettings:
     candidates: int = 6000
     max_theta_deg: float = 70.0
     target_snr: float = 100.0
+    reference_snr: float | None = None
     starts: int = 4
     seed: int = 0
 
@@ -80,6 +86,9 @@ class AdaptiveSettings:
                 f"adaptive settings: need 1 <= initial ({self.initial}) <= budget ({self.budget}), batch "
                 f"({self.batch}) >= 1 and candidates ({self.candidates}) >= budget"
             )
+        if not self.target_snr > 0 or (self.reference_snr is not None and not self.reference_snr > 0):
+            raise ValueError(f"adaptive settings: target_snr ({self.target_snr}) and reference_snr "
+                             f"({self.reference_snr}) must be > 0")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -198,6 +207,14 @@ def round_rig(rig: RigConfig, index: int) -> RigConfig:
     return dataclasses.replace(rig, file=rig.file.model_copy(update={"simulation": sim}))
 
 
+def with_reference_snr(rig: RigConfig, snr: float | None) -> RigConfig:
+    """The rig with its reference readings' SNR goal replaced (None: unchanged)."""
+    if snr is None:
+        return rig
+    ref = rig.file.reference.model_copy(update={"target_snr": float(snr)})
+    return dataclasses.replace(rig, file=rig.file.model_copy(update={"reference": ref}))
+
+
 def run_adaptive(
     rig: RigConfig,
     out: str | Path,
@@ -219,6 +236,7 @@ def run_adaptive(
     pool = candidate_points(rig.geometry, s.candidates, max_theta_deg=s.max_theta_deg, seed=s.seed)
     if len(pool) < s.budget:
         raise ValueError(f"{rig.path}: only {len(pool)} of {s.candidates} candidates are reachable; need {s.budget}")
+    rig = with_reference_snr(rig, s.reference_snr)
     result = AdaptiveResult()
     rows: list[dict[str, Any]] = []
     todo = space_filling(pool, s.initial)

@@ -16,7 +16,8 @@ def _adaptive(args: argparse.Namespace) -> int:
 
     spec = None if args.model == "auto" else parse_models(args.model)[0]
     settings = AdaptiveSettings(budget=args.budget, initial=args.initial, batch=args.batch,
-                                max_theta_deg=args.max_theta, target_snr=args.snr, seed=args.seed)  # fmt: skip
+                                max_theta_deg=args.max_theta, target_snr=args.snr,
+                                reference_snr=args.reference_snr, seed=args.seed)  # fmt: skip
     rig = _rig(args.rig)
     print(f"adaptive sweep into {args.out}: {settings.budget} captures, model {args.model}", file=sys.stderr)
     try:
@@ -50,6 +51,10 @@ def add_adaptive_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]
     p.add_argument("--initial", type=int, default=20, help="captures of the first round (default 20)")
     p.add_argument("--batch", type=int, default=10, help="captures per later round (default 10)")
     p.add_argument("--snr", type=float, default=100.0, help="SNR goal of each capture (default 100)")
+    p.add_argument("--reference-snr", type=float, default=None,
+                   help="SNR goal of the reference readings (default: the rig's [reference] target_snr); each "
+                   "round is its own run with about two, so a matte sample, whose fit is all calibration, "
+                   "wants them about 2.5x the SNR a single long run would use")  # fmt: skip
     p.add_argument("--max-theta", type=float, default=70.0, help="largest zenith of any capture, deg (default 70)")
     p.add_argument("--seed", type=int, default=0, help="seed of the candidate pool (default 0)")
     p.set_defaults(func=_adaptive)

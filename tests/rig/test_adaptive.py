@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from model.fit_design import brdf_error, error_pairs
-from model.fit_spec import lambert_ggx
+from model.fit_spec import LAMBERT, lambert_ggx
 from rig.adaptive import AdaptiveSettings, Round, candidate_points, run_adaptive, space_filling
 from rig.config import material_from
 from rig.kinematics import solve_degrees
@@ -51,6 +51,31 @@ def test_the_first_round_spreads_over_the_half_difference_domain() -> None:
 def test_settings_are_checked() -> None:
     with pytest.raises(ValueError, match="initial"):
         AdaptiveSettings(budget=10, initial=20)
+    with pytest.raises(ValueError, match="reference_snr"):
+        AdaptiveSettings(reference_snr=0.0)
+
+
+def _reference_errors(result_dir: Path) -> np.ndarray:
+    """Relative standard errors of every reference reading of every round, (readings, channels)."""
+    recs: list[dict] = []
+    for journal in sorted(result_dir.glob("round-*/journal.jsonl")):
+        recs += [r for r in map(json.loads, journal.read_text().splitlines()) if r.get("kind") == "reference"]
+    return np.array([np.asarray(r["reading_std_error"]) / np.asarray(r["reading"]) for r in recs])
+
+
+def test_reference_snr_sets_the_reference_readings_of_every_round(tmp_path: Path) -> None:
+    rig = sim_rig(camera={"resolution": [64, 64], "roi": [30, 30, 34, 34]}, reference={"target_snr": 100.0})
+    base = AdaptiveSettings(budget=14, initial=8, batch=6, candidates=600, target_snr=50.0)
+    run_adaptive(rig, tmp_path / "rig", LAMBERT, base, log=lambda _: None)
+    better = AdaptiveSettings(budget=14, initial=8, batch=6, candidates=600, target_snr=50.0, reference_snr=1500.0)
+    run_adaptive(rig, tmp_path / "set", LAMBERT, better, log=lambda _: None)
+    as_rig, as_set = _reference_errors(tmp_path / "rig"), _reference_errors(tmp_path / "set")
+    # Round 0 (8 points, every 6) reads three times, round 1 twice.
+    assert len(as_rig) == len(as_set) == 5
+    # The goal sets the photon noise; the journal's error is the larger of that and a 16-pixel scatter, which
+    # scatters itself. The rig's own goal of 100, which its bright tile overshoots, stays well above 1/1500.
+    assert np.median(as_set) <= 1.05 / 1500.0 and np.all(as_set <= 1.5 / 1500.0)
+    assert np.all(as_rig > 1.5 / 1500.0)
 
 
 def test_an_adaptive_sweep_runs_rounds_refits_and_lowers_its_predicted_error(tmp_path: Path) -> None:
