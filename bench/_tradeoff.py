@@ -31,7 +31,12 @@ FloatArray = npt.NDArray[np.float64]
 MAX_THETA = 70.0
 SNR = 100.0
 #: Reference readings at a higher SNR than the points: they calibrate every point between them.
-REFERENCE_SNR = 400.0
+REFERENCE_SNR = 1000.0
+#: The adaptive sweep's references: its rounds are short runs, ~18 readings in all against the dense grid's 42
+#: (one every 25 points), so it reads them at REFERENCE_SNR * sqrt(42 / 18) to calibrate as well.
+ADAPTIVE_REFERENCE_SNR = 1500.0
+#: The adaptive sweep at three capture SNRs (labels and goals): rig time is mostly moves, so SNR is cheap.
+ADAPTIVE_VARIANTS = (("adaptive", 100.0), ("adaptive SNR 300", 300.0), ("adaptive SNR 500", 500.0))
 
 GOLD = {"model": "CookTorrance", "alpha": 0.2, "distribution": "ggx", "fresnel": "conductor",
         "eta": [0.18, 0.42, 1.37], "k": [3.42, 2.35, 1.77]}  # fmt: skip
@@ -158,6 +163,7 @@ def plot(results: dict[str, list[Outcome]], goal: dict[str, float], path: Path) 
         "rusinkiewicz": ("s-", "tab:green"),
         "adaptive": ("D-", "tab:red"),
         "adaptive SNR 300": ("^-", "tab:purple"),
+        "adaptive SNR 500": ("v-", "tab:brown"),
     }
     for col, name in enumerate(names):
         for row, key in enumerate(("captures", "rig_time_s")):

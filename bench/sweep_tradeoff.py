@@ -12,8 +12,8 @@ sweep; the tables show the mean over seeds. One seed alone is a coin toss at the
 Designs: regular grids in (theta_i, theta_o, phi_o), from sparse (30) to dense (~1000, the anchor);
 Rusinkiewicz half/difference grids with theta_h spaced quadratically (dense at the specular peak); and
 the adaptive sweep of ``rig.adaptive`` (20 space-filling captures, then rounds of 10 chosen where the
-current fit's expected BRDF error falls most), scored after every round. Goal: the adaptive sweep
-reaches the dense grid's error with at most 100 captures.
+current fit's expected BRDF error falls most), scored after every round, at capture SNRs of 100, 300 and
+500. Goal: the adaptive sweep reaches the dense grid's error with at most 100 captures.
 
 Rig time is the simulated clock: moves at the servos' programmed speeds, settling, exposures, reference
 readings. Each adaptive round is its own run, with its own references before and after.
@@ -35,8 +35,11 @@ from pathlib import Path
 
 from bench._common import format_table, machine_description, markdown_table, write_section
 from bench._tradeoff import (
+    ADAPTIVE_REFERENCE_SNR,
+    ADAPTIVE_VARIANTS,
     MATERIALS,
     MAX_THETA,
+    REFERENCE_SNR,
     Outcome,
     grid_design,
     mean_outcomes,
@@ -54,8 +57,6 @@ ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs" / "benchmarks.md"
 FIGURE = ROOT / "docs" / "figures" / "sweep_tradeoff.png"
 BUDGET = 100
-#: The adaptive sweep again with captures at SNR 300 (9x the exposure of SNR 100): fewer, better captures.
-ADAPTIVE_HIGH_SNR = "adaptive SNR 300"
 #: Below this a shape error is rounding: a Lambertian fit is a scale per channel, so it has no shape error.
 SHAPELESS = 1e-9
 
@@ -81,7 +82,7 @@ def _material(index: int, quick: bool, work: Path, seed: int) -> list[Outcome]:
             print(f"  {strategy:13s} {o.captures:5d} captures: error {o.error:.2e} ({time.perf_counter() - t0:.0f} s)",
                   file=sys.stderr, flush=True)  # fmt: skip
 
-    for label, snr in (("adaptive", 100.0), (ADAPTIVE_HIGH_SNR, 300.0)):
+    for label, snr in ADAPTIVE_VARIANTS:
         rounds: list[Round] = []
 
         def record(r: Round, label: str = label, rounds: list[Round] = rounds) -> None:
@@ -92,7 +93,8 @@ def _material(index: int, quick: bool, work: Path, seed: int) -> list[Outcome]:
             rounds.append(r)
             print(f"  {label:13s} {r.captures:5d} captures: error {out[-1].error:.2e}", file=sys.stderr, flush=True)
 
-        settings = AdaptiveSettings(budget=BUDGET, max_theta_deg=MAX_THETA, target_snr=snr, seed=seed)
+        settings = AdaptiveSettings(budget=BUDGET, max_theta_deg=MAX_THETA, target_snr=snr,
+                                    reference_snr=ADAPTIVE_REFERENCE_SNR, seed=seed)  # fmt: skip
         run_adaptive(rig, work / f"{index}-{label.replace(' ', '-')}", m.spec, settings, pairs=pairs,
                      on_round=record, log=lambda _: None)  # fmt: skip
     return out
@@ -128,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
             keys = [("BRDF error", "error")]
             if dense.shape_error > SHAPELESS:
                 keys.append(("shape error", "shape_error"))
-            for (label, key), strat in itertools.product(keys, ("adaptive", ADAPTIVE_HIGH_SNR)):
+            for (label, key), strat in itertools.product(keys, [v[0] for v in ADAPTIVE_VARIANTS]):
                 adaptive = [o for o in res if o.strategy == strat and o.captures <= BUDGET]
                 ref = getattr(dense, key)
                 reach = next((o for o in adaptive if getattr(o, key) <= ref), None)
@@ -145,17 +147,19 @@ def main(argv: list[str] | None = None) -> int:
             md_parts.append(f"**{m.name}** (anchor: the dense grid of {dense.captures} captures)\n\n"
                             + markdown_table(headers, rows))  # fmt: skip
     elapsed = time.perf_counter() - t_start
-    plot(results, goal, FIGURE)
-    print(f"figure: {FIGURE}\nwall time {elapsed:.0f} s")
+    print(f"wall time {elapsed:.0f} s")
     if not args.no_write:
+        print(f"figure: {plot(results, goal, FIGURE)}")
         body = (
             f"Measured {datetime.date.today()} on {machine_description()}"
             f"{' (--quick)' if args.quick else ''}; `.venv/bin/python -m bench.sweep_tradeoff`, wall time "
             f"{elapsed:.0f} s. Error: relative cosine-weighted RMS BRDF error of the fit against the true "
             f"material over 4000 pairs up to {MAX_THETA:.0f} deg (shape error: after the best scale per channel, "
-            f"i.e. without the calibration's share), mean over {args.seeds} simulator seeds. Points at SNR 100, "
-            "references at SNR 400 every 25 points (each an independent draw); fits weighted by each capture's "
-            "own reading error; a 4-pixel ROI of a 512-pixel view (0.05 deg).\n\n" + "\n\n".join(md_parts) + "\n\n"
+            f"i.e. without the calibration's share), mean over {args.seeds} simulator seeds. Grid points at SNR "
+            f"100 in the dimmest channel, references at SNR {REFERENCE_SNR:g} every 25 points (each an "
+            f"independent draw); the adaptive sweep's references at SNR {ADAPTIVE_REFERENCE_SNR:g} (its ~18 "
+            "readings calibrate as well as the dense grid's 42); fits weighted by each capture's own reading "
+            "error; a 4-pixel ROI of a 512-pixel view (0.05 deg).\n\n" + "\n\n".join(md_parts) + "\n\n"
             + "\n".join(f"- {v}" for v in verdicts)
             + "\n\n![error against captures and rig time](figures/sweep_tradeoff.png)\n"
         )  # fmt: skip
