@@ -60,7 +60,8 @@ class Level:
 
     def roi_level(self) -> list[RoiLevel]:
         """The acquisition module's RoiLevel per channel for planning (the dimmest sets the SNR)."""
-        means = self.channel_means or (self.mean,)
+        # A dark channel's mean is noise about zero and may be negative: plan for no light, not an error.
+        means = [min(max(m, 0.0), self.peak) for m in (self.channel_means or (self.mean,))]
         return [RoiLevel(self.peak, m, self.n_pixels, min(self.dark, m)) for m in means]
 
     def as_dict(self) -> dict[str, Any]:

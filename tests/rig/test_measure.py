@@ -67,3 +67,15 @@ def test_a_level_from_an_older_journal_plans_on_its_overall_mean() -> None:
     # The dimmest channel's darkest pixel cannot be brighter than its mean.
     assert [lv.dark_dn_per_s for lv in new.roi_level()] == [100.0, 100.0, 100.0]
     assert [lv.dark_dn_per_s for lv in Level(900.0, 500.0, 300.0, 16, (700.0, 600.0, 200.0)).roi_level()][2] == 200.0
+
+
+def test_a_black_point_after_a_bright_one_is_read_not_refused() -> None:
+    scene, cam, settings = _setup(0.2)
+    bright = take_reading(cam, settings, None)
+    scene.radiance = 0.0
+    black = take_reading(cam, settings, bright.level)
+    # Noise about zero: some channel means come out negative, and the next plan must still be made from them.
+    assert np.all(np.isfinite(black.roi.mean)) and np.all(np.abs(black.roi.mean) < 5 * black.roi.std_error + 1e-3)
+    assert max(black.exposures_s) == cam.max_exposure_s  # the top-up went to the longest exposure
+    nxt = take_reading(cam, settings, black.level)
+    assert np.all(np.isfinite(nxt.roi.mean))
