@@ -18,9 +18,10 @@ current fit's expected BRDF error falls most), scored after every round, at capt
 Rig time is the simulated clock: moves at the servos' programmed speeds, settling, exposures, reference
 readings. Each adaptive round is its own run, with its own references before and after.
 
-Run: ``.venv/bin/python -m bench.sweep_tradeoff [--quick] [--seeds N] [--no-write]`` (about 3 minutes per
-seed on 2 cores; ``--quick --seeds 1`` about 1). Prints a table per material, writes the ``sweep_tradeoff`` section of
-docs/benchmarks.md and docs/figures/sweep_tradeoff.png.
+Run: ``.venv/bin/python -m bench.sweep_tradeoff [--quick] [--seeds N] [--first-seed K] [--materials ...]
+[--no-write]`` (about 4 minutes per seed on 2 cores; ``--quick --seeds 1`` about 2). Prints a table per
+material and, per seed, whether each adaptive variant ended at or below that seed's dense grid; with every
+material, writes the ``sweep_tradeoff`` section of docs/benchmarks.md and docs/figures/sweep_tradeoff.png.
 """
 
 from __future__ import annotations
@@ -57,6 +58,8 @@ ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs" / "benchmarks.md"
 FIGURE = ROOT / "docs" / "figures" / "sweep_tradeoff.png"
 BUDGET = 100
+#: Command-line names of MATERIALS, in order.
+KEYS = ("metal", "plastic", "matte")
 #: Below this a shape error is rounding: a Lambertian fit is a scale per channel, so it has no shape error.
 SHAPELESS = 1e-9
 
@@ -100,13 +103,31 @@ def _material(index: int, quick: bool, work: Path, seed: int) -> list[Outcome]:
     return out
 
 
+def _wins(runs: list[list[Outcome]]) -> str:
+    """Per seed, whether each adaptive variant's last round is at or below that seed's dense grid."""
+    parts = []
+    for strat, _ in ADAPTIVE_VARIANTS:
+        wins = 0
+        for run in runs:
+            dense = max((o for o in run if o.strategy == "grid"), key=lambda o: o.captures)
+            last = max((o for o in run if o.strategy == strat), key=lambda o: o.captures)
+            wins += last.error <= dense.error
+        parts.append(f"{strat} at {BUDGET} at or below the dense grid in {wins} of {len(runs)} seeds")
+    return "per seed: " + ", ".join(parts)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the trade for every material; print tables, write the docs section and the figure."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer and smaller designs (a smoke run)")
     ap.add_argument("--no-write", action="store_true", help="print only; leave docs/ alone")
     ap.add_argument("--seeds", type=int, default=3, help="noise realisations averaged (default 3)")
+    ap.add_argument("--first-seed", type=int, default=1, help="first simulator seed (default 1): more seeds later")
+    ap.add_argument("--materials", nargs="+", choices=list(KEYS), default=list(KEYS),
+                    help="materials to run (default all; docs/ is written only for all)")  # fmt: skip
     args = ap.parse_args(argv)
+    command = " ".join(["python -m bench.sweep_tradeoff", *(sys.argv[1:] if argv is None else argv)])
+    write = not args.no_write and len(set(args.materials)) == len(KEYS)
     t_start = time.perf_counter()
     results: dict[str, list[Outcome]] = {}
     goal: dict[str, float] = {}
@@ -114,9 +135,12 @@ def main(argv: list[str] | None = None) -> int:
     verdicts: list[str] = []
     with tempfile.TemporaryDirectory() as tmp:
         for i, m in enumerate(MATERIALS):
+            if KEYS[i] not in args.materials:
+                continue
             print(f"{m.name}:", file=sys.stderr, flush=True)
-            seeds = range(1, args.seeds + 1)
-            res = mean_outcomes([_material(i, args.quick, Path(tmp), seed) for seed in seeds])
+            seeds = range(args.first_seed, args.first_seed + args.seeds)
+            runs = [_material(i, args.quick, Path(tmp), seed) for seed in seeds]
+            res = mean_outcomes(runs)
             results[m.name] = res
             dense = max((o for o in res if o.strategy == "grid"), key=lambda o: o.captures)
             goal[m.name] = dense.error
@@ -140,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
                             + (f"first at or below the dense grid's at {reach.captures} captures "
                                f"({reach.rig_time_s / 3600:.2f} h)" if reach
                                else "never below the dense grid's"))  # fmt: skip
+            verdict += "; " + _wins(runs)
             verdicts.append(verdict)
             print(f"\n{m.name} (anchor: dense grid of {dense.captures}, error {dense.error:.2e})")
             print(format_table(headers, rows))
@@ -148,11 +173,11 @@ def main(argv: list[str] | None = None) -> int:
                             + markdown_table(headers, rows))  # fmt: skip
     elapsed = time.perf_counter() - t_start
     print(f"wall time {elapsed:.0f} s")
-    if not args.no_write:
+    if write:
         print(f"figure: {plot(results, goal, FIGURE)}")
         body = (
             f"Measured {datetime.date.today()} on {machine_description()}"
-            f"{' (--quick)' if args.quick else ''}; `.venv/bin/python -m bench.sweep_tradeoff`, wall time "
+            f"{' (--quick)' if args.quick else ''}; `{command}`, wall time "
             f"{elapsed:.0f} s. Error: relative cosine-weighted RMS BRDF error of the fit against the true "
             f"material over 4000 pairs up to {MAX_THETA:.0f} deg (shape error: after the best scale per channel, "
             f"i.e. without the calibration's share), mean over {args.seeds} simulator seeds. Grid points at SNR "
