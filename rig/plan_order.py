@@ -51,14 +51,18 @@ def _times(d: FloatArray, speed: FloatArray, accel: FloatArray, coordinated: boo
         return out
     if d.shape[-1] == 0:
         return np.zeros(d.shape[:-1])
-    # A (sub-)zero share of the move gives no limit (inf); a path with every share zero does not move.
-    with np.errstate(divide="ignore", over="ignore"):
-        v = np.min(speed / d, axis=-1)
-        a = np.min(accel / d, axis=-1)
-    still = ~np.isfinite(v)
-    t = trapezoid_time_s(np.ones_like(v), np.where(still, 1.0, v), np.where(still, 1.0, a))
-    out = np.where(still, 0.0, t)
-    return out
+    # The path is measured along its longest joint, so every share is at most 1 and the limits cannot
+    # overflow (over a unit path, a move of 1e-310 deg divided by it gave inf: "does not move", time 0).
+    # A zero share gives no limit (inf); a path with every share zero does not move.
+    length = np.max(d, axis=-1)
+    still = length <= 0.0
+    share = d / np.where(still, 1.0, length)[..., None]
+    with np.errstate(divide="ignore"):
+        v = np.min(speed / share, axis=-1)
+        a = np.min(accel / share, axis=-1)
+    t = trapezoid_time_s(np.where(still, 0.0, length), np.where(still, 1.0, v), np.where(still, 1.0, a))
+    times: FloatArray = np.where(still, 0.0, t)
+    return times
 
 
 def step_times(src: FloatArray, dst: FloatArray, speed: FloatArray, accel: FloatArray, coordinated: bool) -> FloatArray:

@@ -327,3 +327,12 @@ def test_bad_inputs_are_refused():
         plan_sweep(np.zeros((0, 4)), GEO, [*axes, Axis("yaw", 9, 1.0)])
     with pytest.raises(ValueError, match="start"):
         plan_sweep(np.zeros((0, 4)), GEO, axes, start=Joints(0.0, 0.0))
+
+
+def test_a_vanishing_coordinated_move_takes_vanishing_time_not_none():
+    # Found by hypothesis: a 1e-310 deg move overflowed the unit path's limits to inf, read as "does not move".
+    axes = make_axes()
+    a, b = Joints(0.0, 0.0, 0.0, 0.0), Joints(1e-310, 0.0, 0.0, 0.0)
+    independent = move_time_s(a, b, axes)
+    assert independent > 0.0
+    assert move_time_s(a, b, axes, coordinated=True) == pytest.approx(independent, rel=1e-9, abs=0.0)
