@@ -9,6 +9,7 @@ dimmest channel falls short of the SNR goal, a second bracket planned from its o
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -150,7 +151,7 @@ def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | No
                              max_frames=settings.max_frames, dark_frames=settings.dark_frames)  # fmt: skip
         frames = _frames(camera, plan.exposures_s)
         try:
-            reading = _merge(camera, settings, frames, (), (), take_darks=False)
+            reading = _roi_check(settings, frames)
         except RoiError:
             # Every ROI pixel clipped in every frame (a dark point followed by a specular peak): meter.
             notes = ("the bracket planned from the previous point clipped every pixel: metered afresh",)
@@ -193,7 +194,22 @@ def _topped_up(camera: Camera, settings: CaptureSettings, frames: list[Frame], f
         frames = frames + _frames(camera, plan.exposures_s)
         notes = (f"SNR {reached:.0f} of {settings.target_snr:g} from the bracket planned on the previous point: "
                  f"topped up with {len(plan.exposures_s)} more frame(s)",)  # fmt: skip
-    return _merge(camera, settings, frames, (), notes, take_darks=True)
+    return _merge(camera, settings, frames, (), notes)
+
+
+def _roi_check(settings: CaptureSettings, frames: list[Frame]) -> Reading:
+    """The frames merged over the ROI alone, without darks: enough to judge them, at the ROI's cost.
+
+    The crop is widened to even pixel bounds so a raw mosaic keeps its colour-filter phase.
+    """
+    check = dataclasses.replace(settings, dark_frames=0)
+    if settings.roi is not None:
+        x0, y0, x1, y1 = settings.roi
+        cx, cy = x0 - x0 % 2, y0 - y0 % 2
+        box = (cx, cy, x1 + x1 % 2, y1 + y1 % 2)
+        frames = [dataclasses.replace(f, data=_crop(f.data, box)) for f in frames]
+        check = dataclasses.replace(check, roi=(x0 - cx, y0 - cy, x1 - cx, y1 - cy))
+    return _merge(None, check, frames, (), ())
 
 
 def _capture(
@@ -203,7 +219,7 @@ def _capture(
     test: tuple[float, ...],
     notes: tuple[str, ...],
 ) -> Reading:
-    return _merge(camera, settings, _frames(camera, exposures), test, notes, take_darks=True)
+    return _merge(camera, settings, _frames(camera, exposures), test, notes)
 
 
 def _frames(camera: Camera, exposures: tuple[float, ...]) -> list[Frame]:
@@ -211,17 +227,15 @@ def _frames(camera: Camera, exposures: tuple[float, ...]) -> list[Frame]:
 
 
 def _merge(
-    camera: Camera,
+    camera: Camera | None,
     settings: CaptureSettings,
     frames: list[Frame],
     test: tuple[float, ...],
     notes: tuple[str, ...],
-    *,
-    take_darks: bool,
 ) -> Reading:
-    """Merge and reduce the frames; ``take_darks`` False skips the dark frames (a check before a possible top-up)."""
+    """Merge and reduce the frames, with the camera's dark frames (none without a camera)."""
     applied = tuple(f.exposure_s for f in frames)
-    darks, dark_taken = _darks(camera, applied, settings.dark_frames if take_darks else 0)
+    darks, dark_taken = _darks(camera, applied, settings.dark_frames) if camera is not None else ({}, ())
     hdr = merge_linear(frames, settings.noise, darks=darks or None)
     h, w = hdr.radiance.shape[:2]
     roi = settings.roi if settings.roi is not None else (0, 0, w, h)

@@ -79,3 +79,19 @@ def test_a_black_point_after_a_bright_one_is_read_not_refused() -> None:
     assert max(black.exposures_s) == cam.max_exposure_s  # the top-up went to the longest exposure
     nxt = take_reading(cam, settings, black.level)
     assert np.all(np.isfinite(nxt.roi.mean))
+
+
+@pytest.mark.parametrize("kind", ["linear", "raw"])
+def test_the_check_before_a_top_up_merges_the_roi_alone_to_the_same_reading(kind: str) -> None:
+    from rig.measure import _frames, _merge, _roi_check
+
+    image = np.random.default_rng(0).uniform(0.01, 0.03, (16, 16, 3))
+    noise = SensorNoise()
+    cam = SimulatedCamera(lambda: image, noise=noise, kind=kind, seed=2)
+    # Odd offsets: a raw mosaic cropped there would swap its red and blue sites.
+    settings = CaptureSettings(noise=noise, timing=CameraTiming(), dark_frames=0, roi=(3, 5, 9, 12))
+    frames = _frames(cam, (0.05, 0.2))
+    whole, check = _merge(None, settings, frames, (), ()), _roi_check(settings, frames)
+    np.testing.assert_allclose(check.roi.mean, whole.roi.mean, rtol=1e-12)
+    np.testing.assert_allclose(check.roi.std_error_propagated, whole.roi.std_error_propagated, rtol=1e-12)
+    assert check.level == whole.level and check.hdr.radiance.shape[:2] == (8, 8)
