@@ -13,6 +13,7 @@ from acquisition.frame import Camera, ExposureSettings, Frame
 from model.geometry import degrees_to_vector
 from rig.config import RigConfig, SweepConfig, material_from, parse, rig_config, sweep_config
 from rig.config_schema import RigFile, SweepFile
+from rig.store import RunStore
 
 LAMBERT = {"model": "Lambert", "rho_d": 0.5}
 GOLD = {"model": "CookTorrance", "alpha": 0.3, "eta": [0.18, 0.42, 1.37], "k": [3.42, 2.35, 1.77]}
@@ -85,3 +86,10 @@ class FlakyCamera:
     def close(self) -> None:
         """Pass through."""
         self._camera.close()
+
+
+def reference_relative_errors(out: str | Path) -> np.ndarray:
+    """Relative standard errors (readings, channels) of the reference readings of every round of an adaptive sweep."""
+    rounds = sorted(Path(out).glob("round-*"))
+    recs = [r for d in rounds for r in RunStore.read(d).records() if r["kind"] == "reference"]
+    return np.array([np.asarray(r["reading_std_error"]) / np.asarray(r["reading"]) for r in recs])

@@ -15,7 +15,7 @@ from rig.adaptive import AdaptiveSettings, Round, candidate_points, run_adaptive
 from rig.config import material_from
 from rig.kinematics import solve_degrees
 from rig.sweeps import directions_to_half_diff
-from tests.rig.run_helpers import sim_rig
+from tests.rig.run_helpers import reference_relative_errors, sim_rig
 
 PLASTIC = {"model": "CookTorrance", "rho_d": [0.5, 0.12, 0.08], "alpha": 0.1, "distribution": "ggx",
            "fresnel": "dielectric", "eta": 1.5}  # fmt: skip
@@ -55,21 +55,13 @@ def test_settings_are_checked() -> None:
         AdaptiveSettings(reference_snr=0.0)
 
 
-def _reference_errors(result_dir: Path) -> np.ndarray:
-    """Relative standard errors of every reference reading of every round, (readings, channels)."""
-    recs: list[dict] = []
-    for journal in sorted(result_dir.glob("round-*/journal.jsonl")):
-        recs += [r for r in map(json.loads, journal.read_text().splitlines()) if r.get("kind") == "reference"]
-    return np.array([np.asarray(r["reading_std_error"]) / np.asarray(r["reading"]) for r in recs])
-
-
 def test_reference_snr_sets_the_reference_readings_of_every_round(tmp_path: Path) -> None:
     rig = sim_rig(camera={"resolution": [64, 64], "roi": [30, 30, 34, 34]}, reference={"target_snr": 100.0})
     base = AdaptiveSettings(budget=14, initial=8, batch=6, candidates=600, target_snr=50.0)
     run_adaptive(rig, tmp_path / "rig", LAMBERT, base, log=lambda _: None)
     better = AdaptiveSettings(budget=14, initial=8, batch=6, candidates=600, target_snr=50.0, reference_snr=1500.0)
     run_adaptive(rig, tmp_path / "set", LAMBERT, better, log=lambda _: None)
-    as_rig, as_set = _reference_errors(tmp_path / "rig"), _reference_errors(tmp_path / "set")
+    as_rig, as_set = reference_relative_errors(tmp_path / "rig"), reference_relative_errors(tmp_path / "set")
     # Round 0 (8 points, every 6) reads three times, round 1 twice.
     assert len(as_rig) == len(as_set) == 5
     # The goal sets the photon noise; the journal's error is the larger of that and a 16-pixel scatter, which

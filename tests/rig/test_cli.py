@@ -80,17 +80,15 @@ def test_demo_measures_gold_on_the_simulated_rig(tmp_path, capsys):
 
 
 def test_adaptive_measures_its_budget_with_the_reference_snr_asked_for(tmp_path, capsys):
-    import json
+    from tests.rig.run_helpers import reference_relative_errors
 
     out = tmp_path / "ad"
     args = ["adaptive", "--rig", str(EXAMPLES / "rig_simulated.toml"), "--out", str(out), "--model", "lambert",
             "--budget", "12", "--initial", "8", "--batch", "4", "--snr", "50", "--reference-snr", "1200"]  # fmt: skip
     assert cli.main(args) == 0
     assert "12 captures in 2 rounds" in capsys.readouterr().out
-    refs = [r for j in sorted(out.glob("round-*/journal.jsonl")) for r in map(json.loads, j.read_text().splitlines())
-            if r.get("kind") == "reference"]  # fmt: skip
-    rel = np.array([np.asarray(r["reading_std_error"]) / np.asarray(r["reading"]) for r in refs])
+    rel = reference_relative_errors(out)
     # The photon noise is planned to 1/1200; the journal's error also counts a 16-pixel scatter.
-    assert len(refs) >= 4 and np.median(rel) <= 1.1 / 1200
+    assert len(rel) >= 4 and np.median(rel) <= 1.1 / 1200
     assert cli.main([*args[:4], str(tmp_path / "bad"), "--reference-snr", "0"]) == 2
     assert "reference_snr (0.0) must be > 0" in capsys.readouterr().err
