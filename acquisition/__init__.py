@@ -1,1 +1,6 @@
-"""gonio.acquisition (see DESIGN.md); filled in by its own issue."""
+"""From photons on a sensor to a calibrated reading.
+
+Frames and the camera interface (frame.py), camera backends (cameras/), image files (files/), exposure
+planning (exposure/), the HDR merge (hdr/), the sensor's noise (noise.py), ROI reduction (roi.py) and
+calibration against a reference target (calibration.py). Imports model only.
+"""

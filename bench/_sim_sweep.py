@@ -28,16 +28,16 @@ import numpy.typing as npt
 from matplotlib.ticker import NullLocator
 
 import model as m
-from acquisition.exposure import fixed_bracket
-from acquisition.hdr import merge_linear
+from acquisition.exposure.plan import fixed_bracket
+from acquisition.hdr.merge import merge_linear
 from acquisition.roi import reduce_roi
 from model.base import Model
-from rig.geometry import RigGeometry
-from rig.kinematics import Joints, RigPose, forward, inverse, require, world_pose
-from rig.kinematics_types import Unreachable
-from simulator.camera_view import camera_view, pixel_on_sample
+from rig.instrument.geometry import RigGeometry
+from rig.instrument.kinematics import Joints, RigPose, forward, inverse, require, world_pose
+from rig.instrument.kinematics_types import Unreachable
+from simulator.render.spec import Box, CameraSpec, LightSpec
+from simulator.render.view import camera_view, pixel_on_sample
 from simulator.rig import SimRigSpec, SimulatedRig
-from simulator.scene_spec import Box, CameraSpec, LightSpec
 
 FloatArray = npt.NDArray[np.float64]
 

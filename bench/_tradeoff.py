@@ -17,15 +17,15 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from model.fit import fit
-from model.fit_design import ErrorPairs, brdf_error
-from model.fit_samples import Samples
-from model.fit_spec import LAMBERT, FitSpec, ggx_conductor, lambert_ggx
-from rig.adaptive import measure_points
-from rig.config import RigConfig, material_from, parse, rig_config
-from rig.config_schema import RigFile
-from rig.kinematics import solve_degrees
-from rig.sweeps import half_diff_to_directions, normalise, unique_rows
+from model.fit.design import ErrorPairs, brdf_error
+from model.fit.samples import Samples
+from model.fit.solve import fit
+from model.fit.spec import LAMBERT, FitSpec, ggx_conductor, lambert_ggx
+from rig.instrument.kinematics import solve_degrees
+from rig.run.adaptive import measure_points
+from rig.run.config import RigConfig, material_from, parse, rig_config
+from rig.run.config_schema import RigFile
+from rig.run.sweeps import half_diff_to_directions, normalise, unique_rows
 
 FloatArray = npt.NDArray[np.float64]
 MAX_THETA = 70.0

@@ -28,15 +28,15 @@ from pathlib import Path
 import dynamixel_sdk as sdk
 
 from bench._common import format_table, machine_description, markdown_table, timed_calls, write_section
-from rig.axis import Axis
-from rig.clock import ManualClock
-from rig.config import default_axes
-from rig.geometry import RigGeometry
-from rig.links.dynamixel import DynamixelLink, DynamixelOptions
-from rig.links.dynamixel_table import X_SERIES
-from rig.links.grbl import GrblLink
+from rig.instrument.axis import Axis
+from rig.instrument.clock import ManualClock
+from rig.instrument.geometry import RigGeometry
+from rig.instrument.links.dynamixel import DynamixelLink, DynamixelOptions
+from rig.instrument.links.dynamixel_table import X_SERIES
+from rig.instrument.links.grbl import GrblLink
+from rig.run.config import default_axes
 from simulator.dynamixel import open_virtual_bus
-from simulator.grbl import open_virtual_grbl
+from simulator.grbl.server import open_virtual_grbl
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 BAUD = 1_000_000

@@ -28,9 +28,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 import numpy.typing as npt
 
-from acquisition.exposure import evaluate_plan, fixed_bracket, plan_exposure
-from acquisition.exposure_snr import roi_snr
-from acquisition.exposure_types import CameraTiming, ExposurePlan, RoiLevel
+from acquisition.exposure.plan import evaluate_plan, fixed_bracket, plan_exposure
+from acquisition.exposure.snr import roi_snr
+from acquisition.exposure.spec import CameraTiming, ExposurePlan, RoiLevel
 from acquisition.noise import SensorNoise
 from bench._common import DEFAULT_OUT, format_table, machine_description, markdown_table, write_section
 

@@ -41,7 +41,7 @@ from bench._common import (
 )
 from model import CookTorrance, Ward
 from model.base import Model
-from model.fit import FitResult, FitSpec, Samples, fit, ggx_conductor, lambert_ggx, ward_anisotropic
+from model.fit.solve import FitResult, FitSpec, Samples, fit, ggx_conductor, lambert_ggx, ward_anisotropic
 from model.merl import MerlTable
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"

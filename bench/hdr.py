@@ -45,11 +45,11 @@ import numpy as np
 import numpy.typing as npt
 from scipy.special import erf
 
-from acquisition.hdr import HdrImage, merge_linear
+from acquisition.hdr.merge import HdrImage, merge_linear
+from acquisition.hdr.response import calibrate_response, merge_8bit
 from acquisition.noise import SensorNoise
-from acquisition.response import calibrate_response, merge_8bit
 from bench._common import DEFAULT_OUT, best_time, format_table, machine_description, markdown_table, write_section
-from simulator.sensor import capture_bracket, dark_frame
+from simulator.camera.sensor import capture_bracket, dark_frame
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 Array = npt.NDArray[np.float64]

@@ -36,20 +36,20 @@ import numba
 import numpy as np
 
 import model as m
-from acquisition.exposure import fixed_bracket
-from acquisition.hdr import merge_linear
+from acquisition.exposure.plan import fixed_bracket
+from acquisition.hdr.merge import merge_linear
 from acquisition.noise import SensorNoise
 from acquisition.roi import reduce_roi
 from bench import _sim_sweep as sweep
 from bench._common import DEFAULT_OUT, format_table, machine_description, markdown_table, timed_calls, write_section
 from model.base import Model
-from rig.geometry import RigGeometry
-from rig.kinematics import forward, inverse, require, world_pose
-from simulator.camera import CameraOptics, SimulatedCamera
-from simulator.materials import to_mitsuba
-from simulator.mitsuba_variant import unavailable_reason
-from simulator.render import RadianceRenderer, roi_mean
-from simulator.scene_spec import CameraSpec, LightSpec
+from model.mitsuba.materials import to_mitsuba
+from model.mitsuba.variant import unavailable_reason
+from rig.instrument.geometry import RigGeometry
+from rig.instrument.kinematics import forward, inverse, require, world_pose
+from simulator.camera.simulated import CameraOptics, SimulatedCamera
+from simulator.render.renderer import RadianceRenderer, roi_mean
+from simulator.render.spec import CameraSpec, LightSpec
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs" / "benchmarks.md"

@@ -2,7 +2,7 @@
 
 1. Rig time (the simulated clock at the end of the run) against the lower bound for the same ordered
    plan: each move's time with all axes in parallel under the speed and acceleration the servos are
-   programmed with (the axes' limits rounded to register units; ``rig.plan.move_time_s``, the anchor)
+   programmed with (the axes' limits rounded to register units; ``rig.run.plan.move_time_s``, the anchor)
    plus every exposure. Goal: within 10 %. The excess is the
    in-position polling (a move is seen to end at the next poll) and the servos' tolerance band.
 2. The controller's own wall time per point, excluding motion and exposure: wall time of the run minus
@@ -30,13 +30,14 @@ from typing import Any
 import numpy as np
 
 from bench._common import format_table, machine_description, markdown_table, write_section
-from rig.config import parse, rig_config, sweep_config
-from rig.config_schema import RigFile, SweepFile
-from rig.links.dynamixel_table import X_SERIES
-from rig.plan import move_time_s
-from rig.runner import Runner, RunOptions
-from rig.session import capture_settings, dynamixel_options, make_plan, manifest
-from rig.store import RunStore
+from rig.instrument.links.dynamixel_table import X_SERIES
+from rig.run.config import parse, rig_config, sweep_config
+from rig.run.config_schema import RigFile, SweepFile
+from rig.run.hardware import dynamixel_options
+from rig.run.plan import move_time_s
+from rig.run.runner import Runner, RunOptions
+from rig.run.session import capture_settings, make_plan, manifest
+from rig.run.store import RunStore
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 

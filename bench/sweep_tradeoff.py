@@ -3,7 +3,7 @@
 Three known materials on the simulated rig (a rough metal, a glossy plastic, a matte diffuse). For each,
 every design is run end to end (servos on the pty, Mitsuba camera, HDR merge, reference calibration), its
 table is fitted with the material's own model family, and the fit is scored against the truth: the
-relative, cosine-weighted RMS BRDF error over 4000 pairs up to 70 deg (``model.fit_design.brdf_error``).
+relative, cosine-weighted RMS BRDF error over 4000 pairs up to 70 deg (``model.fit.design.brdf_error``).
 
 Every design is measured with several simulator seeds (``--seeds``, default 3): each seed is a fresh noise
 realisation of every frame, reference readings included, and a fresh candidate pool for the adaptive
@@ -11,7 +11,7 @@ sweep; the tables show the mean over seeds. One seed alone is a coin toss at the
 
 Designs: regular grids in (theta_i, theta_o, phi_o), from sparse (30) to dense (~1000, the anchor);
 Rusinkiewicz half/difference grids with theta_h spaced quadratically (dense at the specular peak); and
-the adaptive sweep of ``rig.adaptive`` (20 space-filling captures, then rounds of 10 chosen where the
+the adaptive sweep of ``rig.run.adaptive`` (20 space-filling captures, then rounds of 10 chosen where the
 current fit's expected BRDF error falls most), scored after every round, at capture SNRs of 100, 300 and
 500. Goal: the adaptive sweep reaches the dense grid's error with at most 100 captures.
 
@@ -50,9 +50,9 @@ from bench._tradeoff import (
     rusinkiewicz_design,
     sizes,
 )
-from model.fit_design import brdf_error, error_pairs
-from rig.adaptive import AdaptiveSettings, Round, run_adaptive
-from rig.config import material_from
+from model.fit.design import brdf_error, error_pairs
+from rig.run.adaptive import AdaptiveSettings, Round, run_adaptive
+from rig.run.config import material_from
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs" / "benchmarks.md"

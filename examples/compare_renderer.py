@@ -18,7 +18,7 @@ from pathlib import Path
 import model as m
 from simulator.comparison import compare_sweep
 from simulator.comparison_plot import plot_comparison
-from simulator.scene_spec import CameraSpec
+from simulator.render.spec import CameraSpec
 
 #: Aluminium, complex index at the RGB primaries, GGX alpha 0.25: a native Mitsuba roughconductor.
 ALUMINIUM = m.CookTorrance(

@@ -9,7 +9,7 @@ gain 1, of one channel or (``channel=None``) the mean of RGB.
 ``predicted`` is ``model.predict_radiance`` at the nominal (ROI-centre) directions with a point light at
 the light arm's radius, times ``CameraOptics.counts_per_radiance``: what a runner assumes. ``extended``
 evaluates the model at ``subsamples``^2 positions inside every ROI pixel (the pinhole model of
-``simulator.camera_view``), each with its own directions, light distance, spot falloff and sample
+``simulator.render.view``), each with its own directions, light distance, spot falloff and sample
 coverage, averaged as the box-filtered film does: what the render should give up to noise. Its parts
 isolate the causes: light distance and ROI extent (``extended_unbounded - predicted``), then the
 sample's edges, then the spot beam's edge.
@@ -49,21 +49,21 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from acquisition.atomic import atomic_path
-from acquisition.hdr import merge_linear
+from acquisition.files.atomic import atomic_path
+from acquisition.hdr.merge import merge_linear
 from acquisition.noise import SensorNoise
 from acquisition.roi import reduce_roi
 from model.base import BRDF
+from model.mitsuba.materials import to_mitsuba
 from model.predict import predict_radiance
 from model.radiometry import PointLight, SpotLight
-from rig.geometry import RigGeometry
-from rig.kinematics import Joints, Unreachable, forward, inverse, world_pose
-from rig.kinematics_types import Branch, RigPose
-from simulator.camera import CameraOptics, SimulatedCamera
-from simulator.camera_view import camera_view, pixel_on_sample
-from simulator.materials import to_mitsuba
-from simulator.render import RadianceRenderer, resolve_variant
-from simulator.scene_spec import Box, CameraSpec, LightSpec
+from rig.instrument.geometry import RigGeometry
+from rig.instrument.kinematics import Joints, Unreachable, forward, inverse, world_pose
+from rig.instrument.kinematics_types import Branch, RigPose
+from simulator.camera.simulated import CameraOptics, SimulatedCamera
+from simulator.render.renderer import RadianceRenderer, resolve_variant
+from simulator.render.spec import Box, CameraSpec, LightSpec
+from simulator.render.view import camera_view, pixel_on_sample
 
 FloatArray = npt.NDArray[np.float64]
 Direction = tuple[float, float, float, float]

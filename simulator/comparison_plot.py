@@ -20,7 +20,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter
 
-from acquisition.atomic import atomic_path
+from acquisition.files.atomic import atomic_path
 from simulator.comparison import ComparisonResult, ComparisonRow, Explanation
 
 #: One colour per explanation (colour-blind-safe Okabe-Ito palette).

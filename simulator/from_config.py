@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from acquisition.noise import SensorNoise
-from rig.config import ConfigError, RigConfig, material_from
+from rig.run.config import ConfigError, RigConfig, material_from
+from simulator.render.spec import CameraSpec, LightSpec
 from simulator.rig import SimRigSpec
-from simulator.scene_spec import CameraSpec, LightSpec
 
 
 def spec_from(rig: RigConfig) -> SimRigSpec:

@@ -22,17 +22,17 @@ import numpy.typing as npt
 from acquisition.noise import SensorNoise
 from model.base import Model
 from model.lambert import Lambert
-from rig.axis import Axis
-from rig.clock import Clock, ManualClock, ScaledClock
-from rig.config import default_axes
-from rig.geometry import RigGeometry
-from rig.kinematics import Joints, world_pose
-from rig.links.dynamixel import DynamixelLink, DynamixelOptions
-from simulator.camera import CameraOptics, SimulatedCamera
+from model.mitsuba.materials import MitsubaMaterial, to_mitsuba
+from rig.instrument.axis import Axis
+from rig.instrument.clock import Clock, ManualClock, ScaledClock
+from rig.instrument.geometry import RigGeometry
+from rig.instrument.kinematics import Joints, world_pose
+from rig.instrument.links.dynamixel import DynamixelLink, DynamixelOptions
+from rig.run.config import default_axes
+from simulator.camera.simulated import CameraOptics, SimulatedCamera
 from simulator.dynamixel.bus import VirtualDynamixelBus
-from simulator.materials import MitsubaMaterial, to_mitsuba
-from simulator.render import RadianceRenderer
-from simulator.scene_spec import CameraSpec, LightSpec
+from simulator.render.renderer import RadianceRenderer
+from simulator.render.spec import CameraSpec, LightSpec
 
 _ACTIVE_LOCK = threading.Lock()
 _active: list[SimulatedRig] = []
@@ -69,7 +69,7 @@ class SimRigSpec:
         seed, the servos' physical positions and the material in view, so it does not depend on what the
         rig did before (a resumed run sees what an uninterrupted one saw).
     reference_albedo:
-        Albedo of the Lambertian reference tile that ``rig.reference`` swaps in for the sample.
+        Albedo of the Lambertian reference tile that ``rig.run.reference`` swaps in for the sample.
     light_drift_per_s:
         Relative change of the light's intensity per second of rig time (0: a stable lamp), for drift tests.
     """

@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from simulator.mitsuba_variant import unavailable_reason, use_variant
+from model.mitsuba.variant import unavailable_reason, use_variant
 
 #: The rgb variants the oracle tests run under, fastest first.
 ORACLE_VARIANTS = ("llvm_ad_rgb", "scalar_rgb")

@@ -7,7 +7,7 @@
   ``gonio[genicam]``).
 
 Backends are imported from their modules, so importing this package loads neither OpenCV nor any
-optional library. Time comes from a ``ClockLike`` (acquisition must not import rig; ``rig.clock``'s
+optional library. Time comes from a ``ClockLike`` (acquisition must not import rig; ``rig.instrument.clock``'s
 clocks satisfy this protocol structurally).
 """
 
@@ -21,7 +21,7 @@ from typing import Protocol, runtime_checkable
 
 @runtime_checkable
 class ClockLike(Protocol):
-    """A source of monotonic time in seconds that can be waited on (``rig.clock.Clock`` fits)."""
+    """A source of monotonic time in seconds that can be waited on (``rig.instrument.clock.Clock`` fits)."""
 
     def now(self) -> float:
         """Current time in seconds (monotonic, arbitrary origin)."""

@@ -19,9 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.cameras import CameraError, ClockLike, RealTimeClock, import_backend
+from acquisition.files.images import read_frame
+from acquisition.files.metadata import DEFAULT_EXPOSURE_RTOL
 from acquisition.frame import ExposureSettings, Frame
-from acquisition.images import read_frame
-from acquisition.metadata import DEFAULT_EXPOSURE_RTOL
 
 _SHUTTER_RE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(?:/\s*(\d+(?:\.\d+)?))?\s*(?:s|sec|\"|'')?\s*$", re.IGNORECASE)
 

@@ -84,7 +84,7 @@ class OpenCVCamera:
         Raise ExposureUnconfirmedError when the exposure cannot be set and read back, instead of
         delivering frames marked ``exposure_confirmed = False``.
     clock:
-        Time source for frame timestamps (``rig.clock`` clocks fit); real time by default.
+        Time source for frame timestamps (``rig.instrument.clock`` clocks fit); real time by default.
     camera_id:
         Identity to report; by default built from the backend and the source.
     """

@@ -18,9 +18,9 @@ from dataclasses import replace
 from pathlib import Path
 
 from acquisition.cameras import CameraError, ClockLike, RealTimeClock
+from acquisition.files.images import read_frame
+from acquisition.files.metadata import DEFAULT_EXPOSURE_RTOL, check_exposure
 from acquisition.frame import ExposureSettings, Frame, FrameError
-from acquisition.images import read_frame
-from acquisition.metadata import DEFAULT_EXPOSURE_RTOL, check_exposure
 
 DEFAULT_PATTERNS: tuple[str, ...] = (
     "*.dng",
@@ -55,7 +55,7 @@ class TetheredFolderCamera:
     timeout_s:
         How long ``capture()`` waits for a new, complete file before raising TimeoutError.
     clock:
-        Time source for polling and timestamps (``rig.clock`` clocks fit); real time by default.
+        Time source for polling and timestamps (``rig.instrument.clock`` clocks fit); real time by default.
     poll_interval_s:
         Time between two looks at the folder.
     trigger:

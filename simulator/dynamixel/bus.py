@@ -32,7 +32,7 @@ import tty
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 
-from rig.clock import Clock, SystemClock
+from rig.instrument.clock import Clock, SystemClock
 from simulator.dynamixel import instructions
 from simulator.dynamixel.faults import ReplyFate
 from simulator.dynamixel.protocol import PacketParser, crc16

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import threading
 
-from rig.clock import Clock, SystemClock
+from rig.instrument.clock import Clock, SystemClock
 from simulator.dynamixel import control_table as ct
 from simulator.dynamixel.faults import HardwareError, ServoFaults, ServoMechanics
 from simulator.dynamixel.motion import (

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.atomic import atomic_path
+from acquisition.files.atomic import atomic_path
 
 
 def test_success_replaces_the_target(tmp_path: Path) -> None:

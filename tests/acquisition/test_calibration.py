@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from acquisition.calibration import CalibrationError, ReferenceCalibration, detector_solid_angle
-from acquisition.exposure import plan_exposure
-from acquisition.exposure_types import RoiLevel
+from acquisition.exposure.plan import plan_exposure
+from acquisition.exposure.spec import RoiLevel
 from acquisition.noise import SensorNoise
 from acquisition.roi import reduce_roi
 

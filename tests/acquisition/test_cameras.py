@@ -18,9 +18,9 @@ from acquisition.cameras.genicam import GenICamCamera, parse_pixel_format
 from acquisition.cameras.gphoto2 import GPhoto2Camera, nearest_choice, parse_iso, parse_shutter_speed
 from acquisition.cameras.opencv import EXPOSURE_MAPPINGS, OpenCVCamera
 from acquisition.cameras.tethered import TetheredFolderCamera
-from acquisition.dng import write_dng
+from acquisition.files.dng import write_dng
 from acquisition.frame import Camera, ExposureSettings, FrameError
-from rig.clock import ManualClock, SystemClock
+from rig.instrument.clock import ManualClock, SystemClock
 
 
 class PollClock(ManualClock):

@@ -3,10 +3,10 @@ import math
 import numpy as np
 import pytest
 
-from acquisition.exposure import evaluate_plan, fixed_bracket, plan_exposure
-from acquisition.exposure_snr import pixel_snr, roi_snr
-from acquisition.exposure_types import CameraTiming, ExposureError, RoiLevel
-from acquisition.metering import meter, saturated
+from acquisition.exposure.metering import meter, saturated
+from acquisition.exposure.plan import evaluate_plan, fixed_bracket, plan_exposure
+from acquisition.exposure.snr import pixel_snr, roi_snr
+from acquisition.exposure.spec import CameraTiming, ExposureError, RoiLevel
 from acquisition.noise import SensorNoise
 
 NOISE = SensorNoise()  # 4 e-/DN, 3 e- read noise, 60000 e- full well: saturation 15000 counts above black

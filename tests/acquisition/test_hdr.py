@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from acquisition.frame import Frame, FrameError
-from acquisition.hdr import HdrFlag, measure_saturation, merge_linear
+from acquisition.hdr.merge import HdrFlag, measure_saturation, merge_linear
 from acquisition.noise import SensorNoise
-from simulator.sensor import capture, capture_bracket, dark_frame
+from simulator.camera.sensor import capture, capture_bracket, dark_frame
 
 NOISE = SensorNoise()  # 4 e-/DN, 3 e- read noise, black 512, 14-bit, full well 15000 DN (below the ADC's 15871)
 EXPOSURES = [0.001 * 4.0**k for k in range(5)]  # 2 stops apart, 1 ms .. 256 ms

@@ -12,16 +12,16 @@ import pytest
 import rawpy
 import tifffile
 
-from acquisition.dng import MIN_DNG_SIDE, write_dng
-from acquisition.frame import Frame, FrameError
-from acquisition.images import read_frame, read_tiff
-from acquisition.raw import (
+from acquisition.files.dng import MIN_DNG_SIDE, write_dng
+from acquisition.files.images import read_frame, read_tiff
+from acquisition.files.raw import (
     LINEAR_POSTPROCESS,
     bin_bayer,
     cfa_pattern_string,
     demosaic_linear,
     read_raw,
 )
+from acquisition.frame import Frame, FrameError
 
 KODAK = Path("/work/shared/data/raw/kodak_dc50.kdc")
 PATTERNS = ["RGGB", "BGGR", "GRBG", "GBRG"]

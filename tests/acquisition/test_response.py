@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from acquisition.frame import Frame, FrameError
-from acquisition.hdr import HdrFlag
+from acquisition.hdr.merge import HdrFlag
+from acquisition.hdr.response import ResponseCurve, calibrate_or_load, calibrate_response, merge_8bit
 from acquisition.noise import SensorNoise
-from acquisition.response import ResponseCurve, calibrate_or_load, calibrate_response, merge_8bit
-from simulator.sensor import SCurve, capture_bracket, srgb_curve
+from simulator.camera.sensor import SCurve, capture_bracket, srgb_curve
 
 NOISE = SensorNoise()
 EXPOSURES = [0.001 * 4.0**k for k in range(6)]  # 1 ms .. 1 s, 2 stops apart

@@ -34,7 +34,7 @@ import pytest
 from model import fresnel, microfacet
 from model.cook_torrance import CookTorrance
 from model.lambert import Lambert
-from simulator.mitsuba_variant import use_variant
+from model.mitsuba.variant import use_variant
 from tests.mitsuba_helpers import (
     ORACLE_VARIANTS,
     bsdf_eval_cos,

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from acquisition.frame import Camera
-from acquisition.hdr import merge_linear
+from acquisition.hdr.merge import merge_linear
 from acquisition.noise import SensorNoise
-from rig.clock import ManualClock
-from simulator.camera import CameraOptics, SimulatedCamera
+from rig.instrument.clock import ManualClock
+from simulator.camera.simulated import CameraOptics, SimulatedCamera
 
 NOISE = SensorNoise()
 

@@ -12,7 +12,7 @@ import pytest
 
 import model as m
 from acquisition.noise import SensorNoise
-from rig.geometry import RigGeometry
+from rig.instrument.geometry import RigGeometry
 from simulator.comparison import (
     ComparisonResult,
     Explanation,
@@ -23,7 +23,7 @@ from simulator.comparison import (
     subpixel_lattice,
 )
 from simulator.comparison_plot import plot_comparison
-from simulator.scene_spec import CameraSpec, LightSpec
+from simulator.render.spec import CameraSpec, LightSpec
 
 pytestmark = pytest.mark.mitsuba
 

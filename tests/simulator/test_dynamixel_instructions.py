@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from rig.clock import ManualClock
+from rig.instrument.clock import ManualClock
 from simulator.dynamixel.instructions import handle
 from simulator.dynamixel.protocol import CrcMismatch, Instruction, Packet, build_status
 from simulator.dynamixel.servo import VirtualServo

@@ -28,7 +28,7 @@ from dynamixel_sdk import (
     PortHandler,
 )
 
-from rig.clock import ManualClock
+from rig.instrument.clock import ManualClock
 from simulator.dynamixel import HardwareError, VirtualDynamixelBus, open_virtual_bus, serve_forever
 from simulator.dynamixel.protocol import Instruction, build_packet, build_status
 

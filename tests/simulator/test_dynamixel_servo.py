@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from rig.clock import ManualClock
+from rig.instrument.clock import ManualClock
 from simulator.dynamixel import control_table as ct
 from simulator.dynamixel.faults import HardwareError
 from simulator.dynamixel.motion import TICKS_PER_S2_PER_ACCELERATION_UNIT, TICKS_PER_S_PER_VELOCITY_UNIT

@@ -8,9 +8,9 @@ import time
 import pytest
 import serial
 
-from rig.clock import ManualClock
-from simulator.grbl import open_virtual_grbl, serve_grbl
-from simulator.grbl_controller import VirtualGrbl
+from rig.instrument.clock import ManualClock
+from simulator.grbl.controller import VirtualGrbl
+from simulator.grbl.server import open_virtual_grbl, serve_grbl
 
 BANNER = "Grbl 1.1h ['$' for help]"
 

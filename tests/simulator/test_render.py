@@ -1,4 +1,4 @@
-"""Tests of simulator.scene and simulator.render: the rig's Mitsuba scene, rendered radiance and its cache.
+"""simulator.render.scene and simulator.render.renderer: the rig's Mitsuba scene, rendered radiance and its cache.
 
 The references are independent of Mitsuba's scene code: radiance from the point-source law evaluated per
 pixel on geometry computed here in numpy, Mitsuba's own BSDF ``eval`` in the kinematics' local frame for
@@ -19,16 +19,16 @@ import numpy as np
 import pytest
 
 from model.lambert import Lambert
+from model.mitsuba import variant as mv
 from model.predict import predict_radiance
 from model.radiometry import PointLight
-from rig.geometry import RigGeometry
-from rig.kinematics import RigPose, forward, inverse, require, world_pose
-from simulator import mitsuba_variant as mv
-from simulator import render as render_module
-from simulator.camera_view import camera_view, default_roi, pixel_on_sample
-from simulator.render import RadianceRenderer, render_radiance, roi_mean, roi_radiance
-from simulator.scene import build_scene, sample_to_world
-from simulator.scene_spec import CameraSpec, LightSpec
+from rig.instrument.geometry import RigGeometry
+from rig.instrument.kinematics import RigPose, forward, inverse, require, world_pose
+from simulator.render import renderer as render_module
+from simulator.render.renderer import RadianceRenderer, render_radiance, roi_mean, roi_radiance
+from simulator.render.scene import build_scene, sample_to_world
+from simulator.render.spec import CameraSpec, LightSpec
+from simulator.render.view import camera_view, default_roi, pixel_on_sample
 from tests.mitsuba_helpers import ORACLE_VARIANTS, bsdf_eval_cos, require_variant, rgb
 
 pytestmark = pytest.mark.mitsuba

@@ -7,7 +7,7 @@ import pytest
 
 from acquisition.frame import Frame
 from acquisition.noise import SensorNoise
-from simulator.sensor import (
+from simulator.camera.sensor import (
     GammaCurve,
     SCurve,
     capture,

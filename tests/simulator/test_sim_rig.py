@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import model as m
-from acquisition.hdr import merge_linear
+from acquisition.hdr.merge import merge_linear
 from acquisition.roi import reduce_roi
-from rig.kinematics import Joints, forward, inverse, require
+from rig.instrument.kinematics import Joints, forward, inverse, require
 from simulator.rig import SimRigSpec, SimulatedRig, SimulatedRigError
 
 pytestmark = pytest.mark.mitsuba

@@ -1,0 +1,401 @@
+"""Exposure planning: the fewest and shortest frames that reach a target SNR in the ROI without saturating it.
+
+Units: ROI levels are rates in counts/s above black at gain 1 (the HDR merge's radiance unit: counts over
+exposure x gain), so a frame at gain g collects ``r g t`` counts; exposures in seconds; saturation in
+counts above black from ``SensorNoise.saturation_dn(gain)``.
+
+What the plan promises is computed from ``SensorNoise`` the way the linear merge achieves it. The merge
+estimates a pixel as ``X = sum_k (s_k - dark_k) / sum_k t_k`` over its unsaturated frames, so
+
+    var X = sum_k var_k / (g sum_k t_k)^2,       var_k = SensorNoise.variance_dn2(r g t_k, t_k, g),
+
+which for N equal frames is ``SNR_N = N s / sqrt(N var)``. With ``dark_frames = n_d`` a master dark, the
+mean of n_d dark frames at the same exposure, is subtracted from every frame of that exposure; it is
+common to those N frames and adds ``N^2 var_dark / n_d`` to the numerator's variance (so repeating a frame
+helps less than sqrt(N) when the dark noise matters). Without dark frames the black level and the mean
+dark current are assumed known and subtracted as constants.
+
+Two SNRs, both documented on ``ExposurePlan``:
+
+- ROI SNR (``target_snr``): of the ROI mean reading, the mean of the merged radiance over the ROI's
+  ``n_pixels`` pixels. Its noise is ``sqrt(sum_i var X_i) / n``; since the shot variance is linear in the
+  signal, for frames that saturate no ROI pixel it depends only on the ROI mean level, so
+  ``SNR_roi = sqrt(n) * SNR_pixel(mean)``. This is the noise a repeat of the capture would show, which is
+  what ``reduce_roi``'s propagated standard error reports (texture is not noise).
+- Per-pixel SNR (``pixel_snr``, optional): every pixel from the ROI's dark level up to its peak must
+  reach it. In a bracket the worst pixel is not the darkest one but one just too bright for a long frame,
+  so the planner checks the whole range.
+
+The plan: one frame metered so the ROI peak sits at ``safety`` (80 %) of saturation, capped by the longest
+exposure; if it alone reaches the ROI target it is shortened to the shortest exposure that does; if not, it
+is repeated (long frames repeated rather than stops added: for a linear sensor the noise is set by the
+photons collected, and extra stops of shorter frames add read noise, not photons) until the target is
+met, within ``max_frames`` and ``max_total_s``. A target out of reach returns a plan with
+``reached=False``, its achievable SNR and a note. When the per-pixel target at the dark end needs it, the
+planner adds longer frames (a bracket, ``bracket_ratio`` apart) in which the bright pixels saturate and
+the merge ignores them, choosing greedily the frame that buys the most SNR^2 per second of capture for the
+worst pixel.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from acquisition.exposure.snr import Frames, _dark_rate, _frames, _pixel_grid, pixel_snr, roi_snr
+from acquisition.exposure.spec import CameraTiming, ExposureError, ExposurePlan, RoiLevel, _finite
+from acquisition.noise import SensorNoise
+
+
+def _cost(frames: Frames, overhead_s: float, dark_frames: int) -> float:
+    light = sum(n * (t + overhead_s) for t, n in frames.items())
+    return light + dark_frames * sum(t + overhead_s for t in frames)
+
+
+def plan_exposure(
+    level: RoiLevel | Sequence[RoiLevel],
+    noise: SensorNoise,
+    target_snr: float,
+    camera: CameraTiming | None = None,
+    *,
+    pixel_snr_target: float | None = None,
+    safety: float = 0.8,
+    dark_frames: int = 0,
+    max_frames: int = 64,
+    max_total_s: float | None = None,
+    bracket_ratio: float = 4.0,
+) -> ExposurePlan:
+    """Fewest and shortest frames (seconds) reaching ``target_snr`` on the ROI mean without saturating the ROI.
+
+    ``level`` is one ROI level in counts/s, or one per colour channel (the brightest channel limits the
+    exposure, the dimmest sets the SNR). ``pixel_snr_target`` asks in addition for that per-pixel SNR over
+    the ROI's levels from ``dark_dn_per_s`` to the peak (it may add a bracket of longer frames). ``safety``
+    is the fraction of saturation the ROI peak may reach in the frames that must not clip. Raises
+    ExposureError if the peak saturates even at the shortest exposure; an unreachable target returns a plan
+    with ``reached=False``.
+    """
+    cam = camera or CameraTiming()
+    levels = [level] if isinstance(level, RoiLevel) else list(level)
+    if not levels:
+        raise ValueError("plan_exposure: no ROI level given")
+    target = _finite("plan_exposure", "target_snr", target_snr, lo_open=True)
+    if not 0 < safety <= 1:
+        raise ValueError(f"plan_exposure.safety = {safety!r}: expected a fraction in (0, 1]")
+    if int(dark_frames) != dark_frames or dark_frames < 0:
+        raise ValueError(f"plan_exposure.dark_frames = {dark_frames!r}: expected a whole number >= 0")
+    if int(max_frames) != max_frames or max_frames < 1:
+        raise ValueError(f"plan_exposure.max_frames = {max_frames!r}: expected a whole number >= 1")
+    if not bracket_ratio > 1:
+        raise ValueError(f"plan_exposure.bracket_ratio = {bracket_ratio!r}: expected a factor > 1")
+    if pixel_snr_target is not None:
+        _finite("plan_exposure", "pixel_snr_target", pixel_snr_target, lo_open=True)
+        missing = [i for i, lv in enumerate(levels) if lv.dark_dn_per_s is None]
+        if missing:
+            raise ValueError(
+                f"plan_exposure: pixel_snr_target needs the ROI's dark level, but RoiLevel {missing} has "
+                "dark_dn_per_s = None"
+            )
+    budget = math.inf if max_total_s is None else _finite("plan_exposure", "max_total_s", max_total_s, lo_open=True)
+    gain = cam.gain
+    sat = noise.saturation_dn(gain)
+    dr = _dark_rate(noise, gain)
+
+    def snr_of(frames: Frames) -> float:
+        ts = [t for t, n in frames.items() for _ in range(n)]
+        return min(roi_snr(lv, noise, ts, gain, dark_frames) for lv in levels)
+
+    t_top, n_cap, limits = _longest_frame(levels, noise, cam, safety, dark_frames, max_frames, budget)
+    frames, reached, notes = _repeat_frames(snr_of, target, t_top, n_cap, max_frames, cam, limits)
+
+    expected_pixel: float | None = None
+    if pixel_snr_target is not None or all(lv.dark_dn_per_s is not None for lv in levels):
+        darkest = min((lv.dark_dn_per_s or 0.0) * gain + dr for lv in levels)
+        t_dark = safety * sat / darkest if darkest > 0 else math.inf
+        cap = cam.floor(min(t_dark, cam.max_exposure_s)) or t_top
+        ladder = [t_top]
+        while ladder[-1] * bracket_ratio <= cap * (1 + 1e-9):
+            nxt = cam.floor(ladder[-1] * bracket_ratio)
+            if nxt is None or nxt <= ladder[-1]:
+                break
+            ladder.append(nxt)
+        if cap >= t_top * bracket_ratio and cap > ladder[-1] * (1 + 1e-9):
+            ladder.append(cap)
+        grid = _pixel_grid(levels, ladder, sat, dr, gain)
+
+        def worst(fr: Frames) -> tuple[float, float]:
+            if not grid.size:
+                return 0.0, 0.0  # no light in the ROI
+            ts = [t for t, k in fr.items() for _ in range(k)]
+            s = pixel_snr(grid, noise, ts, gain, dark_frames)
+            i = int(np.argmin(s))
+            return float(s[i]), float(grid[i])
+
+        if pixel_snr_target is not None:
+            frames, ok = _greedy_pixel(frames, worst, ladder, pixel_snr_target, safety * sat, dr, cam.overhead_s,
+                                       dark_frames, max_frames, budget, noise, gain)
+            if ok and reached:
+                frames = _prune(frames, lambda fr: snr_of(fr) >= target and worst(fr)[0] >= pixel_snr_target)
+            if not ok:
+                reached = False
+                notes.append(
+                    f"per-pixel SNR {pixel_snr_target:g} unreachable within max_frames/max_total_s: "
+                    f"lowest achieved {worst(frames)[0]:.4g}"
+                )
+            long = [t for t in sorted(frames) if t > t_top * (1 + 1e-9)]
+            if long:
+                notes.append(
+                    f"bracket: frames of {', '.join(f'{t:.4g}' for t in long)} s saturate the brighter ROI pixels "
+                    "(the merge ignores those samples) to lift the dark end"
+                )
+        expected_pixel = worst(frames)[0]
+
+    exposures = tuple(sorted(t for t, k in frames.items() for _ in range(k)))
+    plan = evaluate_plan(levels, noise, exposures, cam, target_snr=target, pixel_snr_target=pixel_snr_target,
+                         dark_frames=dark_frames)
+    clip_peak = any((lv.peak_dn_per_s * gain + dr) * t > sat for lv in levels for t in frames)
+    if clip_peak and not all(lv.rates_dn_per_s for lv in levels):
+        notes.append("expected_snr is a lower bound: no pixel distribution given, frames clipping the peak not counted")
+    # The evaluated plan (its target, gain and pixel target are the planner's), with what only the planner knows.
+    return dataclasses.replace(
+        plan,
+        reached=reached and plan.expected_snr >= target * (1 - 1e-9),
+        expected_pixel_snr=expected_pixel,
+        notes=tuple(notes),
+    )
+
+
+def _longest_frame(
+    levels: Sequence[RoiLevel], noise: SensorNoise, cam: CameraTiming, safety: float, dark_frames: int,
+    max_frames: int, budget: float,
+) -> tuple[float, int, list[str]]:
+    """The longest frame (s) the ROI peak and the time budget allow, how many of it fit, and what bounds it."""
+    gain = cam.gain
+    sat = noise.saturation_dn(gain)
+    dr = _dark_rate(noise, gain)
+    # The longest frame in which the brightest ROI pixel stays at `safety` of saturation.
+    peak = max(lv.peak_dn_per_s for lv in levels)
+    t_peak = safety * sat / (peak * gain + dr) if peak * gain + dr > 0 else math.inf
+    t_top = cam.floor(t_peak)
+    if t_top is None:
+        raise ExposureError(
+            f"ROI peak {peak:.6g} counts/s saturates even at the shortest exposure: keeping it at {safety:.0%} of "
+            f"saturation ({sat:.6g} counts at gain {gain:g}) needs <= {t_peak:.3g} s, but the shortest available "
+            f"exposure is {cam.ceil(0.0) or cam.min_exposure_s:.3g} s; reduce the light, the aperture or the gain"
+        )
+    limits: list[str] = []  # what bounds the longest frame; worth a note only if the plan ends up using it
+    if t_top < t_peak * (1 - 1e-6):
+        why = "max_exposure_s" if t_peak > cam.max_exposure_s else "the available exposure steps"
+        limits.append(f"longest frame {t_top:.4g} s limited by {why} (peak would reach {safety:.0%} at {t_peak:.4g} s)")
+
+    # Frames of t_top the time budget allows; a budget shorter than one frame shortens that frame.
+    n_cap = max_frames
+    if math.isfinite(budget):
+        per_frame = t_top + cam.overhead_s
+        n_cap = min(n_cap, math.floor((budget - dark_frames * per_frame) / per_frame))
+        if n_cap < 1:
+            fit = cam.floor((budget - (1 + dark_frames) * cam.overhead_s) / (1 + dark_frames))
+            if fit is None:
+                raise ExposureError(
+                    f"max_total_s = {budget:g} s cannot hold one frame: the shortest exposure plus overhead "
+                    f"{cam.overhead_s:g} s (and {dark_frames} dark frames) exceeds it"
+                )
+            limits.append(f"max_total_s = {budget:g} s shortens the longest frame to {fit:.4g} s")
+            t_top, n_cap = fit, 1
+    return t_top, n_cap, limits
+
+
+def _repeat_frames(
+    snr_of: Callable[[Frames], float], target: float, t_top: float, n_cap: int, max_frames: int,
+    cam: CameraTiming, limits: list[str],
+) -> tuple[Frames, bool, list[str]]:
+    """Repeat the longest frame until the ROI SNR reaches ``target``, then shorten them: (frames, reached, notes)."""
+    notes: list[str] = []
+    n = 1
+    if snr_of({t_top: 1}) == 0:
+        notes.append("the ROI mean is 0 counts/s (or clips in every frame): no exposure gives it an SNR")
+    else:
+        while n < n_cap and snr_of({t_top: n}) < target:
+            n += 1
+    reached = snr_of({t_top: n}) >= target
+    if reached:
+        t = _shortest(lambda t: snr_of({t: n}) >= target, cam, t_top)
+        frames: Frames = {t: n}
+        if snr_of(frames) > 1.01 * target and t <= (cam.ceil(cam.min_exposure_s) or t) * (1 + 1e-9):
+            above = snr_of(frames)
+            notes.append(f"the shortest exposure {t:.4g} s already gives ROI SNR {above:.4g}, above the target")
+        if n > 1:
+            notes.extend(limits)
+            one = snr_of({t_top: 1})
+            notes.append(f"{n} repeats of {t:.4g} s: one frame at the peak limit reaches only SNR {one:.4g}")
+    else:
+        frames = {t_top: n}
+        notes.extend(limits)
+        if snr_of(frames) > 0:
+            limit = "max_frames" if n_cap == max_frames else "max_total_s"
+            notes.append(
+                f"target ROI SNR {target:g} unreachable within {limit} ({n} frames of {t_top:.4g} s): "
+                f"achievable {snr_of(frames):.4g}"
+            )
+    return frames, reached, notes
+
+
+def _shortest(ok: Callable[[float], bool], cam: CameraTiming, t_hi: float) -> float:
+    """Shortest available exposure in [min, t_hi] seconds for which ok(t) holds (ok is monotone, ok(t_hi))."""
+    lo = cam.ceil(cam.min_exposure_s) or t_hi
+    if ok(lo):
+        return lo
+    a, b = math.log(lo), math.log(t_hi)
+    for _ in range(100):
+        m = 0.5 * (a + b)
+        if ok(math.exp(m)):
+            b = m
+        else:
+            a = m
+    t = cam.ceil(math.exp(b))
+    return t if t is not None and t <= t_hi and ok(t) else t_hi
+
+
+def _prune(frames: Frames, ok: Callable[[Frames], bool]) -> Frames:
+    """Drop frames, longest first, while ``ok`` still holds: the greedy additions can make earlier ones spare."""
+    frames = dict(frames)
+    for t in sorted(frames, reverse=True) + sorted(frames):
+        while frames.get(t, 0) > 0:
+            trial = dict(frames)
+            trial[t] -= 1
+            if trial[t] == 0:
+                del trial[t]
+            if not trial or not ok(trial):
+                break
+            frames = trial
+    return frames
+
+
+def _greedy_pixel(
+    frames: Frames,
+    worst: Callable[[Frames], tuple[float, float]],
+    ladder: Sequence[float],
+    target: float,
+    limit_dn: float,
+    dark_rate: float,
+    overhead_s: float,
+    dark_frames: int,
+    max_frames: int,
+    budget: float,
+    noise: SensorNoise,
+    gain: float,
+) -> tuple[Frames, bool]:
+    """Add frames until the worst pixel of the ROI reaches ``target`` per-pixel SNR.
+
+    Each round looks at the worst pixel: if k repeats of one ladder exposure bring it to the target, the
+    cheapest such (t, k) in capture seconds (dark frames of a new exposure included; within 5 % of the
+    cheapest, the fewest frames) is added; otherwise
+    the single frame that buys it the most SNR^2 per second. Adding frames never lowers another pixel's
+    SNR much, so the worst pixel moves on until all reach the target or the limits stop it.
+    """
+    frames = dict(frames)
+
+    def snr_with(t: float, k: int) -> float:
+        trial = dict(frames)
+        trial[t] = trial.get(t, 0) + k
+        ts = [x for x, m in trial.items() for _ in range(m)]
+        return float(pixel_snr(r_w, noise, ts, gain, dark_frames))
+
+    while True:
+        snr_w, r_w = worst(frames)
+        if snr_w >= target:
+            return frames, True
+        room = max_frames - sum(frames.values())
+        if room <= 0:
+            return frames, False
+        base_cost = _cost(frames, overhead_s, dark_frames)
+        best: tuple[float, float] | None = None  # (SNR^2 per second, exposure) of one added frame
+        enough: list[tuple[float, int, float]] = []  # (added seconds, k, exposure) of k frames that suffice
+        for t in ladder:
+            if (r_w * gain + dark_rate) * t > limit_dn:
+                continue  # this frame would clip (or nearly) the worst pixel: no help to it
+            new_dark = 0 if t in frames else dark_frames
+            for k in range(1, room + 1):
+                added = (k + new_dark) * (t + overhead_s)
+                if base_cost + added > budget:
+                    break
+                new_snr = snr_with(t, k)
+                if k == 1:
+                    score = (new_snr**2 - snr_w**2) / added
+                    if best is None or score >= best[0]:
+                        best = (score, t)
+                if new_snr >= target:
+                    enough.append((added, k, t))
+                    break
+        if enough:
+            # Shot-limited frames cost about the same per photon at any length: within 5 % of the cheapest,
+            # take the fewest frames (less readout, less read noise, a shorter journal).
+            cheapest = min(e[0] for e in enough)
+            _, k, t = min((e for e in enough if e[0] <= 1.05 * cheapest), key=lambda e: (e[1], e[0]))
+            frames[t] = frames.get(t, 0) + k
+        elif best is not None and best[0] > 0:
+            frames[best[1]] = frames.get(best[1], 0) + 1
+        else:
+            return frames, False
+
+
+def evaluate_plan(
+    level: RoiLevel | Sequence[RoiLevel],
+    noise: SensorNoise,
+    exposures_s: Sequence[float],
+    camera: CameraTiming | None = None,
+    *,
+    target_snr: float = math.nan,
+    pixel_snr_target: float | None = None,
+    dark_frames: int = 0,
+) -> ExposurePlan:
+    """What a given set of exposures (seconds) achieves on an ROI: SNR, times, saturation margin, as a plan.
+
+    Used for fixed brackets and for checking a plan; ``reached`` compares against ``target_snr`` (False for
+    NaN). Exposures are taken as given (not quantised to the camera's steps).
+    """
+    cam = camera or CameraTiming()
+    levels = [level] if isinstance(level, RoiLevel) else list(level)
+    if not exposures_s or not all(math.isfinite(t) and t > 0 for t in exposures_s):
+        raise ValueError(f"evaluate_plan: exposures_s = {tuple(exposures_s)!r}: expected positive seconds")
+    gain = cam.gain
+    sat = noise.saturation_dn(gain)
+    dr = _dark_rate(noise, gain)
+    exposures = tuple(sorted(float(t) for t in exposures_s))
+    frames = _frames(exposures)
+    snr = min(roi_snr(lv, noise, exposures, gain, dark_frames) for lv in levels)
+    peak = max(lv.peak_dn_per_s for lv in levels)
+    margin = sat / ((peak * gain + dr) * exposures[0]) if peak * gain + dr > 0 else math.inf
+    notes: list[str] = []
+    if margin < 1:
+        notes.append(f"ROI peak clips in every frame (margin {margin:.3g}): the reading would be a lower bound")
+    px: float | None = None
+    if all(lv.dark_dn_per_s is not None for lv in levels):
+        grid = _pixel_grid(levels, list(frames), sat, dr, gain)
+        px = float(np.min(pixel_snr(grid, noise, exposures, gain, dark_frames))) if grid.size else None
+    reached = snr >= target_snr and (pixel_snr_target is None or (px is not None and px >= pixel_snr_target))
+    darks = tuple(t for t in sorted(frames) for _ in range(dark_frames))
+    return ExposurePlan(
+        exposures_s=exposures,
+        expected_snr=snr,
+        target_snr=target_snr,
+        reached=bool(reached),
+        total_exposure_s=float(sum(exposures)),
+        total_time_s=_cost(frames, cam.overhead_s, dark_frames),
+        saturation_margin=margin,
+        dark_exposures_s=darks,
+        expected_pixel_snr=px,
+        pixel_snr_target=pixel_snr_target,
+        gain=gain,
+        notes=tuple(notes),
+    )
+
+
+def fixed_bracket(center_s: float, n: int = 7, stops: float = 2.0) -> tuple[float, ...]:
+    """Exposures in seconds of an n-frame bracket ``stops`` EV apart, centred (geometrically) on ``center_s``."""
+    _finite("fixed_bracket", "center_s", center_s, lo_open=True)
+    if int(n) != n or n < 1:
+        raise ValueError(f"fixed_bracket.n = {n!r}: expected a whole number >= 1")
+    return tuple(center_s * 2.0 ** (stops * (k - (n - 1) / 2)) for k in range(n))

@@ -1,0 +1,114 @@
+"""What a set of frames achieves: the variance and SNR of the linear merge, per pixel and for an ROI mean.
+
+Computed from ``SensorNoise`` the way the linear merge ``X = sum_k (s_k - dark_k) / sum_k t_k`` over a
+pixel's unsaturated frames achieves it; the derivation is in ``acquisition.exposure.plan``. Rates are in counts/s
+above black at gain 1, exposures in seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from acquisition.exposure.spec import RoiLevel
+from acquisition.noise import SensorNoise
+
+FloatArray = npt.NDArray[np.float64]
+Frames = dict[float, int]
+"""Frames to merge: exposure in seconds -> how many frames of it."""
+
+
+def _frames(exposures_s: Sequence[float]) -> Frames:
+    out: Frames = {}
+    for t in exposures_s:
+        out[float(t)] = out.get(float(t), 0) + 1
+    return out
+
+
+def _dark_rate(noise: SensorNoise, gain: float) -> float:
+    """Dark current in counts/s at ``gain``: it fills the well alongside the signal."""
+    return noise.dark_current_e_per_s * gain / noise.e_per_dn
+
+
+def _merged_variance(
+    rates: FloatArray, frames: Frames, noise: SensorNoise, gain: float, dark_frames: int, limit_dn: float
+) -> FloatArray:
+    """Variance in (counts/s)^2 of the linear merge per rate; inf where every frame clips (mean above limit)."""
+    rates = np.asarray(rates, dtype=np.float64)
+    rg = rates * gain  # counts/s the sensor delivers at this gain
+    num = np.zeros_like(rates)
+    total_t = np.zeros_like(rates)
+    dr = _dark_rate(noise, gain)
+    for t, n in frames.items():
+        used = (rg + dr) * t <= limit_dn
+        var = n * noise.variance_dn2(rg * t, t, gain)
+        if dark_frames:
+            var = var + n * n * noise.variance_dn2(0.0, t, gain) / dark_frames
+        num += np.where(used, var, 0.0)
+        total_t += np.where(used, n * t, 0.0)
+    out = np.full_like(rates, np.inf)
+    np.divide(num, (gain * total_t) ** 2, out=out, where=total_t > 0)  # the merge divides by sum(t g)
+    return out
+
+
+def roi_snr(
+    level: RoiLevel, noise: SensorNoise, exposures_s: Sequence[float], gain: float = 1.0, dark_frames: int = 0
+) -> float:
+    """SNR of the ROI mean reading (dimensionless) that the linear merge of these frames achieves.
+
+    With a pixel distribution on ``level`` it is exact under the noise model (each level uses the frames in
+    which it does not clip); without one it is computed at the mean level from the frames in which the
+    peak does not clip, a lower bound when other frames saturate part of the ROI.
+    """
+    frames = _frames(exposures_s)
+    sat = noise.saturation_dn(gain)
+    if level.mean_dn_per_s == 0:
+        return 0.0
+    if level.rates_dn_per_s:
+        r = np.asarray(level.rates_dn_per_s, dtype=float)
+        w = np.asarray(level.weights, dtype=float)
+    else:
+        dr = _dark_rate(noise, gain)
+        frames = {t: n for t, n in frames.items() if (level.peak_dn_per_s * gain + dr) * t <= sat}
+        r = np.array([level.mean_dn_per_s])
+        w = np.array([1.0])
+    var = _merged_variance(r, frames, noise, gain, dark_frames, sat)
+    if not np.all(np.isfinite(var[w > 0])):
+        return 0.0  # part of the ROI clips in every frame: the mean is not measurable
+    var_mean = float(np.sum(w * var)) / level.n_pixels
+    return level.mean_dn_per_s / math.sqrt(var_mean)
+
+
+def pixel_snr(
+    rate_dn_per_s: npt.ArrayLike,
+    noise: SensorNoise,
+    exposures_s: Sequence[float],
+    gain: float = 1.0,
+    dark_frames: int = 0,
+) -> FloatArray:
+    """Per-pixel SNR (dimensionless) of the merged radiance of pixels receiving ``rate_dn_per_s`` counts/s."""
+    r = np.asarray(rate_dn_per_s, dtype=float)
+    var = _merged_variance(r.reshape(-1), _frames(exposures_s), noise, gain, dark_frames, noise.saturation_dn(gain))
+    return np.asarray((r.reshape(-1) / np.sqrt(var)).reshape(r.shape), dtype=np.float64)
+
+def _pixel_grid(
+    levels: Sequence[RoiLevel], candidates: Sequence[float], sat: float, dark_rate: float, gain: float
+) -> FloatArray:
+    """Rates (counts/s) at which the per-pixel SNR is checked: log-spaced from dark to peak, plus every rate
+    just too bright for a candidate exposure (the worst pixels of a bracket)."""
+    pts: list[float] = []
+    for lv in levels:
+        lo = float(lv.dark_dn_per_s or 0.0)
+        hi = lv.peak_dn_per_s
+        if hi <= 0:
+            continue
+        lo = max(lo, hi * 1e-9)
+        pts.extend(np.geomspace(lo, hi, 48).tolist())
+        for t in candidates:
+            r = (sat / t - dark_rate) / gain
+            if lo < r * (1 + 1e-9) < hi:
+                pts.append(r * (1 + 1e-9))
+    return np.asarray(sorted(pts), dtype=float)

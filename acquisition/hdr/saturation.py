@@ -1,0 +1,85 @@
+"""Measuring a bracket's clip level from the data: the plateau of clipped pixels at the top of its frames.
+
+Holds :func:`measure_saturation` and its helpers: ``_top_counts`` (a compiled count of the pixels in the
+plateau and just below it) and ``_plateau_level`` (one frame's plateau). See :mod:`acquisition.hdr.merge` for
+how the merge uses the level.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+from acquisition.frame import Frame
+from acquisition.hdr.bracket import _flat, _min_black, check_bracket
+from acquisition.hdr.kernel import _JIT
+
+
+@numba.njit(**_JIT)
+def _top_counts(flat: npt.NDArray[Any], lo: Any, mid: Any) -> tuple[int, int, Any]:  # pragma: no cover
+    # Pixels in [lo, mid), pixels >= mid and their sum, in one branch-free pass. ``lo - lo`` is a zero of
+    # lo's type: integers for integer data (exact sums, and 5x faster than a parallel float reduction).
+    zero = lo - lo
+    n_below = 0
+    n_top = 0
+    sum_top = zero
+    for i in range(flat.size):
+        v = flat[i] + zero
+        top = v >= mid
+        n_top += 1 if top else 0
+        sum_top += v if top else zero
+        n_below += 1 if (v >= lo and not top) else 0
+    return n_below, n_top, sum_top
+
+
+def _plateau_level(frame: Frame, min_pixels: int, min_fraction: float) -> float | None:
+    """Mean of the clipped plateau at the top of one frame, counts above black; None if there is none."""
+    flat = _flat(frame.data)
+    if flat.dtype != np.uint16:
+        flat = flat.astype(np.float32, copy=False)
+    top = float(flat.max())
+    black = _min_black(frame)
+    # The plateau of a full-well clip is as wide as the read noise after the clip (a few counts); 0.2 % of
+    # the range is wide enough for any sensor seen, narrow beside the shot noise of unclipped pixels there.
+    width = max(4.0, 2e-3 * (top - black))
+    lo, mid = top - 4.0 * width, top - width
+    if flat.dtype == np.uint16:
+        n_below, n_top, sum_top = _top_counts(flat, math.ceil(lo), math.ceil(mid))
+    else:
+        n_below, n_top, sum_top = _top_counts(flat, lo, mid)
+    # A clip piles pixels up at the top: far more there than the density just below (3 widths) predicts.
+    if n_top < max(min_pixels, min_fraction * flat.size) or n_top * 3 < 8 * n_below:
+        return None
+    level = float(sum_top) / n_top - black
+    # A frame whose values all sit in a narrow band (a dark frame, a very short exposure) piles up too;
+    # no sensor clips in the bottom tenth of its range.
+    return level if level >= 0.1 * (frame.white_level - black) else None
+
+
+def measure_saturation(
+    frames: Sequence[Frame], *, min_pixels: int = 16, min_fraction: float = 1e-5
+) -> float | None:
+    """Clip level in counts above black, measured from the plateau of clipped pixels; None if nothing clips.
+
+    Looks at the frames from the longest exposure down and takes the median of the plateau levels (mean
+    value of the plateau) of the first two that show one: a pile-up of at least ``min_pixels`` (and
+    ``min_fraction`` of the pixels) within 0.2 % of the range below the frame's maximum, 8x denser than the
+    values just below, and at least a tenth of the way from black to ``white_level`` (a frame whose values
+    all sit in a narrow band near black piles up too). A full-well clip below the ADC's white level shows
+    up here, which trusting ``white_level`` would miss. The frames should share one gain (the clip in
+    counts scales with it); :func:`~acquisition.hdr.merge.merge_linear` measures each gain's frames apart.
+    """
+    check_bracket(frames, ("raw", "linear"))
+    levels: list[float] = []
+    for f in sorted(frames, key=lambda f: f.exposure_s * f.gain, reverse=True):
+        level = _plateau_level(f, min_pixels, min_fraction)
+        if level is not None:
+            levels.append(level)
+            if len(levels) == 2:
+                break
+    return float(np.median(levels)) if levels else None

@@ -1,0 +1,176 @@
+"""``gonio analyze``: from a run directory or a MERL file to a fitted model and a report a person reads at a glance.
+
+The source is loaded into :class:`model.fit.samples.Samples` (analysis/sources.py), the ladder of candidate
+models is fitted and one chosen (analysis/ladder.py), and the :class:`analysis.result.Analysis` this
+produces is all the writers need: the figures (analysis/report_plots.py), the page
+(analysis/report_html.py), ``fit.json`` and the exports (analysis/export.py), all written by
+:func:`write_report` here.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from acquisition.files.atomic import write_atomic
+from analysis.ladder import fit_ladder
+from analysis.result import Analysis, AnalysisError, Log, Reference
+from analysis.sources import DEFAULT_MERL_SAMPLES, load_merl, load_run, read_merl_source
+from model.base import Model
+from model.fit.samples import FitError
+from model.fit.select import default_ladder
+from model.fit.solve import LOSSES
+from model.fit.spec import FitSpec
+from model.serialize import to_json_dict
+from rig.run.store import MANIFEST
+
+
+def load_and_fit(
+    source: str | Path,
+    *,
+    models: Sequence[FitSpec] | None = None,
+    loss: str = "l2",
+    starts: int = 4,
+    samples: int | None = None,
+    seed: int = 0,
+    compare: str | Path | None = None,
+    log: Log | None = None,
+    errors: str = "total",
+) -> Analysis:
+    """Load a run directory or a MERL file (``samples`` random bins), fit the ladder and choose a model."""
+    say = log or (lambda _: None)
+    path = Path(source)
+    if errors not in ("total", "point"):
+        raise AnalysisError(f"--errors {errors!r}: expected 'total' or 'point'")
+    if errors == "point" and path.is_file():
+        raise AnalysisError(f"--errors point: {path} is a MERL file, which has no readings (its errors are assumed)")
+    if loss not in LOSSES:
+        raise AnalysisError(f"--loss {loss!r}: expected one of {', '.join(LOSSES)}")
+    if starts < 1:
+        raise AnalysisError(f"--starts {starts}: expected at least 1")
+    if not path.exists():
+        raise AnalysisError(f"{path}: no such file or directory (SOURCE: a run directory or a MERL .binary file)")
+    if path.is_dir() and samples is not None:
+        raise AnalysisError(f"--samples {samples}: only a MERL source is subsampled; {path} is a run directory")
+    n = DEFAULT_MERL_SAMPLES if samples is None else samples
+    if n < 1:
+        raise AnalysisError(f"--samples {n}: expected a positive number of MERL bins")
+    if path.is_dir() and not (path / MANIFEST).is_file():
+        raise AnalysisError(f"{path}: not a run directory (no {MANIFEST}; expected a directory written by gonio run)")
+    ladder = tuple(default_ladder() if models is None else models)
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        summary, data, refs = load_run(path, say, errors) if path.is_dir() else load_merl(path, n, seed, say)
+        if compare is not None:
+            refs.append(Reference(f"MERL reference {Path(compare).name}", read_merl_source(Path(compare), "--compare")))
+    loaded = [f"{w.category.__name__}: {w.message}" for w in got]
+    try:
+        selection, times, caught = fit_ladder(data, ladder, loss=loss, starts=starts, seed=seed, log=say)
+    except FitError as exc:
+        raise AnalysisError(f"{path}: cannot fit: {exc}") from exc
+    return Analysis(summary, data, ladder, selection, times, tuple(dict.fromkeys(loaded + caught)), tuple(refs),
+                    loss, starts, errors)  # fmt: skip
+
+
+def model_json(model: Model) -> dict[str, Any]:
+    """{"model": class name, "params": {field: value}} of a fitted model (model.serialize's JSON form)."""
+    return to_json_dict(model)
+
+
+def _plain(value: Any) -> Any:
+    """JSON-ready: tuples and arrays as lists, numpy scalars as floats, inf and NaN as None (JSON has neither)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple | np.ndarray):
+        return [_plain(v) for v in value]
+    if isinstance(value, bool | str | int) or value is None:
+        return value
+    f = float(value)
+    return f if math.isfinite(f) else None
+
+
+def fit_json(a: Analysis) -> dict[str, Any]:
+    """The content of fit.json: source, every candidate's fit, the chosen model and its parameters."""
+    sel = a.selection
+    best = min(c.criterion(sel.criterion) for c in sel.candidates)
+    cands = []
+    for c in sel.candidates:
+        doc: dict[str, Any] = {"name": c.name, "k": c.n_params, "fitted": c.result is not None, "error": c.error,
+                               "time_s": a.fit_times_s.get(c.name)}  # fmt: skip
+        if c.result is not None:
+            r = c.result
+            doc |= {
+                "params": dict(zip(r.names, r.values, strict=True)),
+                "std_errors": dict(zip(r.names, r.std_errors, strict=True)),
+                "chi2": r.chi2, "dof": r.dof, "reduced_chi2": r.reduced_chi2, "p_value": r.p_value, "aic": r.aic,
+                "bic": r.bic, f"delta_{sel.criterion}": c.criterion(sel.criterion) - best,
+                "noise_reached": r.noise_reached, "warnings": list(r.warnings), "model": model_json(r.model),
+            }  # fmt: skip
+        cands.append(doc)
+    return _plain({
+        "source": a.source.as_dict(), "loss": a.loss, "errors": a.errors, "starts": a.starts,
+        "criterion": sel.criterion, "n_samples": a.samples.n, "chosen": sel.chosen_name, "reason": sel.reason,
+        "candidates": cands,
+        "model": model_json(sel.chosen.model), "warnings": list(a.warnings),
+    })  # fmt: skip
+
+
+def default_out(source: str | Path) -> Path:
+    """RUN/analysis for a run directory, <stem>-analysis beside a MERL file."""
+    p = Path(source)
+    return p / "analysis" if p.is_dir() else p.with_name(f"{p.stem}-analysis")
+
+
+def write_report(
+    a: Analysis, out: str | Path, *, y_scale: str = "auto", merl: bool = False, log: Log | None = None
+) -> Path:
+    """Write figures/, fit.json, export/ (the chosen model for Mitsuba, glTF, optionally MERL) and index.html."""
+    from analysis.export import export_material
+    from analysis.report_html import write_html
+    from analysis.report_plots import write_figures
+
+    say = log or (lambda _: None)
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise AnalysisError(f"--out {out}: exists and is not a directory")
+    say(f"writing figures to {out / 'figures'}")
+    figures = write_figures(a, out / "figures", y_scale=y_scale, log=say)
+    text = json.dumps(fit_json(a), indent=2, allow_nan=False) + "\n"
+    write_atomic(out / "fit.json", lambda tmp: tmp.write_text(text, encoding="utf-8"))
+    say(f"wrote {out / 'fit.json'}")
+    say(f"exporting the chosen model to {out / 'export'}" + (" (with a 35 MB MERL table)" if merl else ""))
+    exports = export_material(a.selection.chosen.model, out / "export", merl=merl)
+    return write_html(a, figures, out / "index.html", exports)
+
+
+def analyze(
+    source: str | Path,
+    out: str | Path | None = None,
+    *,
+    models: Sequence[FitSpec] | None = None,
+    loss: str = "l2",
+    starts: int = 4,
+    samples: int | None = None,
+    seed: int = 0,
+    compare: str | Path | None = None,
+    y_scale: str = "auto",
+    merl: bool = False,
+    log: Log | None = None,
+    errors: str = "total",
+) -> Path:
+    """Analyse a run directory or MERL file into ``out`` (default: see default_out); returns index.html's path."""
+    a = load_and_fit(source, models=models, loss=loss, starts=starts, samples=samples, seed=seed, compare=compare,
+                     log=log, errors=errors)  # fmt: skip
+    return write_report(a, default_out(source) if out is None else out, y_scale=y_scale, merl=merl, log=log)
+
+
+def stderr_log(line: str) -> None:
+    """Progress lines go to stderr, so stdout carries only the result."""
+    print(line, file=sys.stderr, flush=True)

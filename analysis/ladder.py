@@ -1,0 +1,76 @@
+"""The ladder of candidate models: the names ``--models`` accepts, and fitting every candidate in turn.
+
+Candidates are fitted one by one (each timed, its warnings captured for the report) and chosen among
+exactly as :func:`model.fit.select.select` chooses; ``select`` itself has no per-candidate hook, so the
+loop lives here and the tests check it agrees with ``select``.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Callable, Sequence
+
+from analysis.result import AnalysisError, Log
+from model.fit.samples import FitError, Samples
+from model.fit.select import Candidate, Selection, choose
+from model.fit.solve import FitWarning, fit
+from model.fit.spec import LAMBERT, FitSpec, blinn_phong, ggx_conductor, lambert_ggx, ward_anisotropic
+
+#: Names accepted by ``--models``, in the order ``--help`` lists them (each spec's own name works too).
+MODELS: dict[str, Callable[[], FitSpec]] = {
+    "lambert": lambda: LAMBERT,
+    "lambert_ggx": lambda: lambert_ggx("dielectric"),
+    "lambert_ggx_schlick": lambda: lambert_ggx("schlick").per_channel("f0"),
+    "ggx_conductor": ggx_conductor,
+    "ggx_conductor_lambert": lambda: ggx_conductor(rho_d=True),
+    "blinn_phong": blinn_phong,
+    "ward": ward_anisotropic,
+}
+
+def parse_models(text: str) -> list[FitSpec]:
+    """A ladder from a comma-separated list of MODELS names (or spec names such as lambert+ggx_dielectric)."""
+    by_spec = {make().name: make for make in MODELS.values()}
+    specs = []
+    for name in (n.strip() for n in text.split(",")):
+        make = MODELS.get(name) or by_spec.get(name)
+        if make is None:
+            raise AnalysisError(f"--models {text!r}: unknown model {name!r}; expected names from {', '.join(MODELS)}")
+        specs.append(make())
+    if len({s.name for s in specs}) != len(specs):
+        raise AnalysisError(f"--models {text!r}: a model is listed twice")
+    return specs
+
+
+
+def fit_ladder(
+    samples: Samples,
+    ladder: Sequence[FitSpec],
+    *,
+    loss: str = "l2",
+    starts: int = 4,
+    seed: int = 0,
+    criterion: str = "bic",
+    delta: float = 2.0,
+    log: Log | None = None,
+) -> tuple[Selection, dict[str, float], list[str]]:
+    """Fit every candidate (timed, warnings captured) and choose as select() does: (selection, seconds, warnings)."""
+    cands, times, caught = [], {}, []
+    for spec in ladder:
+        k = len(spec.labels(samples.channels))
+        start = time.perf_counter()
+        with warnings.catch_warnings(record=True) as got:
+            warnings.simplefilter("always")
+            try:
+                cand = Candidate(spec.name, k, fit(spec, samples, loss, None, starts=starts, seed=seed))
+            except FitError as exc:
+                cand = Candidate(spec.name, k, None, str(exc))
+        times[spec.name] = time.perf_counter() - start
+        caught += [str(w.message) if issubclass(w.category, FitWarning) else f"{w.category.__name__}: {w.message}"
+                   for w in got]  # fmt: skip
+        cands.append(cand)
+        if log:
+            r = cand.result
+            how = f"chi2/dof = {r.reduced_chi2:.4g}" if r is not None else f"not fitted: {cand.error}"
+            log(f"fitting {spec.name} ({k} parameters): {how} ({times[spec.name]:.2f} s)")
+    return choose(cands, criterion, delta), times, list(dict.fromkeys(caught))

@@ -1,0 +1,190 @@
+"""The analysis report's page: one self-contained index.html that a person reads from top to bottom.
+
+Order of the page: the verdict (chosen model, chi2/dof) and, for a run that did not finish, a warning
+banner; what was analysed; the chosen model's parameters with std errors and meanings; the selection
+table and its reason; every warning raised while loading and fitting; the figures with one-line
+captions; the coverage of the BRDF domain. Inline CSS only and no scripts, so the page works from a
+file system, an archive or a mail attachment; figures are linked relatively (figures/NAME.png, the SVG
+behind each). Every piece of text from data or files goes through html.escape.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from collections.abc import Mapping
+from html import escape
+from pathlib import Path
+
+from acquisition.files.atomic import write_atomic
+from analysis.report_plots import Figures
+from analysis.result import Analysis
+from model.fit.solve import FitResult
+from model.version import gonio_version
+
+#: What each fitted field means; all BRDF model parameters are dimensionless.
+MEANINGS = {
+    "rho_d": "diffuse albedo (dimensionless, 0..1)",
+    "rho_s": "specular albedo (dimensionless, 0..1)",
+    "alpha": "microfacet roughness alpha (dimensionless)",
+    "alpha_x": "Ward slope along x (dimensionless)",
+    "alpha_y": "Ward slope along y (dimensionless)",
+    "eta": "refractive index, real part (dimensionless)",
+    "k": "extinction coefficient (dimensionless)",
+    "f0": "reflectance at normal incidence (dimensionless, 0..1)",
+    "n": "Blinn-Phong exponent (dimensionless)",
+}
+_CHANNEL = re.compile(r"^(?P<field>.+)_(?P<ch>[rgb]|\d+)$")
+
+CSS = """
+body { font: 15px/1.45 system-ui, sans-serif; max-width: 1180px; margin: 1.5em auto; padding: 0 1em; color: #222; }
+h1 { font-size: 1.5em; margin-bottom: 0.2em; }
+h2 { font-size: 1.15em; margin-top: 1.8em; border-bottom: 1px solid #ddd; }
+.verdict { font-size: 1.1em; background: #eef6ee; padding: 0.6em 0.9em; border-left: 4px solid #009E73; }
+.warn { background: #fff4e0; padding: 0.6em 0.9em; border-left: 4px solid #D55E00; font-weight: 600; }
+table { border-collapse: collapse; margin: 0.5em 0; font-size: 0.93em; }
+th, td { padding: 0.25em 0.7em; border-bottom: 1px solid #e4e4e4; text-align: left; vertical-align: top; }
+td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
+tr.chosen td { font-weight: 700; background: #f3f8ff; }
+figure { margin: 1.2em 0; } figure img { max-width: 100%; border: 1px solid #eee; }
+figcaption { color: #444; font-size: 0.93em; } .muted { color: #777; font-size: 0.88em; }
+"""
+
+
+def _num(v: float, fmt: str = ".4g") -> str:
+    return format(v, fmt) if math.isfinite(v) else ("unconstrained" if math.isinf(v) else "n/a")
+
+
+def _meaning(label: str) -> str:
+    if label in MEANINGS:
+        return MEANINGS[label]
+    m = _CHANNEL.match(label)
+    if m and m["field"] in MEANINGS:
+        return f"{MEANINGS[m['field']]}, channel {m['ch']}"
+    return "(dimensionless)"
+
+
+def _table(header: list[str], rows: list[tuple[list[str], str]]) -> str:
+    """An HTML table from already escaped cells; each row carries a class ("" for none); numbers right-aligned."""
+    head = "".join(f"<th>{h}</th>" for h in header)
+    body = []
+    for cells, cls in rows:
+        tds = "".join(f'<td class="num">{c}</td>' if _looks_numeric(c) else f"<td>{c}</td>" for c in cells)
+        body.append(f'<tr class="{cls}">{tds}</tr>' if cls else f"<tr>{tds}</tr>")
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def _looks_numeric(cell: str) -> bool:
+    return bool(re.fullmatch(r"[-+0-9.e ±]+|unconstrained|n/a", cell))
+
+
+def _source(a: Analysis) -> str:
+    s = a.source
+    rows: list[tuple[str, str]] = [("source", f"{'run directory' if s.kind == 'run' else 'MERL table'} {s.path}")]
+    if s.kind == "run":
+        rows += [
+            ("run status", s.state + (f" ({s.stop_reason})" if s.stop_reason else "")),
+            ("points", f"{s.measured} measured of {s.planned} planned; {s.unreachable} unreachable (not planned)"),
+            ("saturated points", f"{s.lower_bound} lower bounds (one-sided: the fit may not lie below)"),
+            ("sweep", f"{s.sweep_name} ({s.sweep_kind})"),
+            ("rig", str(s.rig_name)),
+        ]  # fmt: skip
+        if s.material:
+            rows.append(("simulated material", s.material))
+    else:
+        rows.append(("samples", f"{s.measured} random bins (std errors assumed)"))
+    if a.references:
+        rows.append(("drawn for comparison", "; ".join(r.label for r in a.references)))
+    n_lower = int(a.samples.lower_bound.sum())
+    rows.append(("samples fitted", f"{a.samples.n} ({n_lower} of them lower bounds, fitted as one-sided constraints)"))
+    rows += [("note", n) for n in s.notes]
+    rows.append(("fit", f"loss {a.loss}, {a.starts} starts, chosen by {a.selection.criterion.upper()}"))
+    return "<table>" + "".join(f"<tr><th>{escape(k)}</th><td>{escape(v)}</td></tr>" for k, v in rows) + "</table>"
+
+
+def _parameters(r: FitResult, a: Analysis) -> str:
+    rows = [([escape(n), f"{_num(v)} ± {_num(e, '.2g')}", escape(_meaning(n))], "")
+            for n, v, e in zip(r.names, r.values, r.std_errors, strict=True)]  # fmt: skip
+    fixed = ", ".join(f"{k} = {v}" for k, v in a.spec(r.spec).fixed.items())
+    head = f"<p><b>{escape(r.spec)}</b>: model class <code>{escape(type(r.model).__name__)}</code>"
+    head += f"; held fixed: {escape(fixed)}</p>" if fixed else "</p>"
+    return head + _table(["parameter", "value ± std error", "meaning (units)"], rows)
+
+
+def _selection(a: Analysis) -> str:
+    sel = a.selection
+    crit = sel.criterion.upper()
+    best = min(c.criterion(sel.criterion) for c in sel.candidates)
+    rows = []
+    for c in sel.candidates:
+        t = f"{a.fit_times_s.get(c.name, math.nan):.2f}"
+        if c.result is None:
+            rows.append(([escape(c.name), str(c.n_params), f"not fitted: {escape(str(c.error))}", "", "", "", "", "",
+                          "", t], ""))  # fmt: skip
+            continue
+        r = c.result
+        rows.append(([escape(c.name) + (" (chosen)" if r is sel.chosen else ""), str(c.n_params), _num(r.chi2, ".5g"),
+                      _num(r.reduced_chi2), _num(r.p_value, ".3g"), _num(r.aic, ".5g"), _num(r.bic, ".5g"),
+                      _num(c.criterion(sel.criterion) - best, ".3g"), "yes" if r.noise_reached else "no", t],
+                     "chosen" if r is sel.chosen else ""))  # fmt: skip
+    header = ["candidate", "k", "chi2", "chi2/dof", "p", "AIC", "BIC", f"Δ{crit}", "at noise", "fit time (s)"]
+    return _table(header, rows) + f"<p>{escape(sel.reason)}</p>"
+
+
+def _figures(figs: Figures) -> str:
+    parts = []
+    for f in figs.files:
+        img = f'<img src="figures/{escape(f.png.name)}" alt="{escape(f.name)}">'
+        link = f'<a href="figures/{escape(f.svg.name)}">{img}</a>' if f.svg else img
+        parts.append(f"<figure>{link}<figcaption>{escape(f.caption)}</figcaption></figure>")
+    return "".join(parts)
+
+
+
+_EXPORT_LABELS = {
+    "material": "gonio model (JSON, model.serialize)",
+    "mitsuba_xml": "Mitsuba 3 BSDF, XML scene fragment",
+    "mitsuba_json": "Mitsuba 3 BSDF, scene dictionary (JSON)",
+    "gltf": "glTF 2.0 metal-roughness material (a projection: its error is in extras)",
+    "merl": "MERL .binary table",
+}
+
+
+def _exports(exports: Mapping[str, Path], page: Path) -> str:
+    items = []
+    for kind, path in exports.items():
+        rel = os.path.relpath(path, page.parent)
+        label = escape(_EXPORT_LABELS.get(kind, kind))
+        items.append(f'<li><a href="{escape(rel)}">{escape(path.name)}</a>: {label}</li>')
+    return f"<ul>{''.join(items)}</ul>" if items else ""
+
+
+def render_html(a: Analysis, figs: Figures, exports: Mapping[str, Path] | None = None, page: Path = Path(".")) -> str:
+    """The report page as a string (see the module docstring for its order)."""
+    r = a.selection.chosen
+    name = a.source.path.name or str(a.source.path)
+    banner = f'<p class="warn">{escape(a.source.warning)}</p>' if a.source.warning else ""
+    warns = "".join(f"<li>{escape(w)}</li>" for w in a.warnings)
+    body = [
+        f"<h1>gonio analysis: {escape(name)}</h1>",
+        f'<p class="verdict">{escape(a.verdict())}</p>', banner,
+        "<h2>Source</h2>", _source(a),
+        "<h2>Chosen model</h2>", _parameters(r, a),
+        "<h3>Exports of the chosen model</h3>" if exports else "", _exports(exports or {}, page),
+        "<h2>Model selection</h2>", _selection(a),
+        "<h2>Warnings</h2>", f"<ul>{warns}</ul>" if warns else "<p>None.</p>",
+        "<h2>Figures</h2>", _figures(figs),
+        "<h2>Coverage of the BRDF domain</h2>", f"<p>{escape(figs.coverage.text())}</p>",
+        f'<p class="muted">gonio {escape(gonio_version())}; fit.json holds every number of this page.</p>',
+    ]  # fmt: skip
+    return (
+        f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>gonio analysis: {escape(name)}'
+        f"</title><style>{CSS}</style></head><body>\n" + "\n".join(p for p in body if p) + "\n</body></html>\n"
+    )
+
+
+def write_html(a: Analysis, figs: Figures, path: str | Path, exports: Mapping[str, Path] | None = None) -> Path:
+    """Write the report page atomically, linking the exported files; returns its path."""
+    text = render_html(a, figs, exports, Path(path))
+    return write_atomic(Path(path), lambda tmp: tmp.write_text(text, encoding="utf-8"))

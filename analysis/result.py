@@ -1,0 +1,99 @@
+"""What one analysis produced: the source it read, the samples, the fitted ladder and its choice.
+
+:class:`Analysis` is the one result type the report's figures (analysis/report_plots.py), its page
+(analysis/report_html.py) and ``fit.json`` (analysis/analyze.py) read; it lives below all of them, so
+none of them imports another to get its data.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from model.base import BRDF
+from model.fit.samples import Samples
+from model.fit.select import Candidate, Selection
+from model.fit.spec import FitSpec
+
+Log = Callable[[str], None]
+
+
+class AnalysisError(ValueError):
+    """The source cannot be analysed (missing, not a run, unreadable, too little data); names the path."""
+
+
+@dataclass(frozen=True)
+class SourceSummary:
+    """What was analysed: a run (status, points measured/planned/unreachable, sweep, material) or a MERL file."""
+
+    kind: str  # "run" or "merl"
+    path: Path
+    state: str  # finished, stopped or running for a run; "file" for MERL
+    stop_reason: str | None = None
+    measured: int = 0
+    planned: int | None = None
+    unreachable: int | None = None
+    lower_bound: int = 0
+    sweep_kind: str | None = None
+    rig_name: str | None = None
+    sweep_name: str | None = None
+    material: str | None = None
+    notes: tuple[str, ...] = ()
+
+    @property
+    def warning(self) -> str | None:
+        """The banner for an unfinished run ("run stopped: <reason>; N of M points"), else None."""
+        if self.kind != "run" or self.state == "finished":
+            return None
+        of = f"{self.measured} of {self.planned} points"
+        if self.state == "stopped":
+            return f"run stopped: {self.stop_reason or 'no reason recorded'}; {of}"
+        return f"run not finished (no status.json: still running or killed); {of}"
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready form (for fit.json)."""
+        return {**dataclasses.asdict(self), "path": str(self.path), "notes": list(self.notes)}
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A BRDF drawn beside the fits on the slices: the simulated material, the MERL source, a --compare file."""
+
+    label: str
+    brdf: BRDF
+
+
+@dataclass(frozen=True, eq=False)
+class Analysis:
+    """The loaded samples, the fitted ladder and its choice, and what the report says about them."""
+
+    source: SourceSummary
+    samples: Samples
+    ladder: tuple[FitSpec, ...]
+    selection: Selection
+    fit_times_s: dict[str, float]
+    warnings: tuple[str, ...]
+    references: tuple[Reference, ...]
+    loss: str
+    starts: int
+    #: "total" (every error in the table) or "point" (each capture's own reading error): see Samples.from_table_rows.
+    errors: str = "total"
+
+    @property
+    def chosen(self) -> Candidate:
+        """The chosen candidate."""
+        return next(c for c in self.selection.candidates if c.result is self.selection.chosen)
+
+    def spec(self, name: str) -> FitSpec:
+        """The ladder's spec of that name."""
+        return next(s for s in self.ladder if s.name == name)
+
+    def verdict(self) -> str:
+        """One line: the chosen model, its chi2/dof and whether the residuals reach the noise."""
+        r = self.selection.chosen
+        noise = "at the noise" if r.noise_reached else "above the noise"
+        return (f"chosen: {r.spec} ({type(r.model).__name__}, {r.n_params} parameters), chi2/dof = "
+                f"{r.reduced_chi2:.3g} ({noise}) on {r.n_samples} samples")  # fmt: skip

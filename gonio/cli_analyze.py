@@ -1,0 +1,72 @@
+"""``gonio analyze``: fit a ladder of models to a run or a MERL file and write a static report.
+
+Progress lines go to stderr; stdout gets the path of index.html and a one-line verdict. Bad input (a
+missing source, a directory that is not a run, a run with too few points, an unreadable MERL file, an
+unknown model name) raises analysis.result.AnalysisError, a ValueError, which ``gonio`` turns into exit code 2
+with the message naming the path.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from gonio.cli_run import EXIT_OK
+
+_MODELS_HELP = ("lambert, lambert_ggx (dielectric), lambert_ggx_schlick, ggx_conductor, ggx_conductor_lambert, "
+                "blinn_phong, ward (anisotropic)")  # fmt: skip
+
+
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive whole number")
+    return value
+
+
+def _analyze(args: argparse.Namespace) -> int:
+    from analysis.analyze import default_out, load_and_fit, stderr_log, write_report
+    from analysis.ladder import parse_models
+
+    log = None if args.quiet else stderr_log
+    models = parse_models(args.models) if args.models else None
+    a = load_and_fit(args.source, models=models, loss=args.loss, starts=args.starts, samples=args.samples,
+                     seed=args.seed, compare=args.compare, log=log, errors=args.errors)  # fmt: skip
+    page = write_report(a, args.out or default_out(args.source), y_scale=args.y_scale, merl=args.merl, log=log)
+    print(page)
+    print(a.verdict())
+    return EXIT_OK
+
+
+def add_analyze_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``gonio analyze``."""
+    p = sub.add_parser(
+        "analyze", help="fit models to a run or a MERL file and write an HTML report with figures",
+        description="Load a run directory (finished, or stopped: then analysed as far as it got, with a warning) or a "
+        "MERL .binary file (random bins, std errors assumed), fit a ladder of models from Lambert upward, choose the "
+        "simplest the data support (BIC) and write DIR/index.html, DIR/fit.json and DIR/figures (in-plane slices, "
+        "polar lobes, residual maps, coverage of the BRDF domain). Exit codes: 0 done, 2 bad input.",
+        epilog="Example: gonio analyze runs/gold --models lambert,lambert_ggx,ggx_conductor  (writes "
+        "runs/gold/analysis/index.html); gonio analyze gold-metallic-paint.binary --samples 20000",
+    )  # fmt: skip
+    p.add_argument("source", help="run directory or MERL .binary file")
+    p.add_argument("--out", help="report directory (default: RUN/analysis, or <name>-analysis beside a MERL file)")
+    p.add_argument("--models", help=f"comma-separated ladder (default: lambert, lambert_ggx, lambert_ggx_schlick, "
+                   f"ward); known: {_MODELS_HELP}")  # fmt: skip
+    # No `choices` from model.fit: importing it (scipy) would slow every gonio command; analyze checks the name.
+    p.add_argument("--loss", default="l2", help="fit loss: l2 (default, chi-square), cosine_l2, log or cbrt")
+    p.add_argument("--errors", default="total", choices=("total", "point"),
+                   help="sample weights: total (default; each value's whole error, calibration included) or point "
+                   "(each capture's own reading error: chi2 then tests the model against the capture noise, and the "
+                   "scale carries the calibration's error on top)")
+    p.add_argument("--starts", type=_positive, default=4, help="optimiser starts per candidate (default 4)")
+    p.add_argument("--samples", type=_positive, help="MERL bins drawn at random (MERL source only; default 20000)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the MERL subsample and the random starts (default 0)")
+    p.add_argument("--compare", metavar="MERL_FILE", help="overlay a reference MERL material on the slices")
+    p.add_argument("--y-scale", default="auto", choices=("auto", "log", "linear"),
+                   help="slices' y axis (default auto: log when the values span more than 50x)")  # fmt: skip
+    p.add_argument("--merl", action="store_true", help="also export the chosen model as a MERL .binary (35 MB)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=_analyze)

@@ -1,0 +1,160 @@
+"""``gonio run``, ``gonio plan``, ``gonio resume`` and ``gonio demo``: sweeps from files, on hardware or simulated.
+
+Exit codes: 0 done; 2 bad input (a rig or sweep file, an argument, a run directory); 3 a hardware fault
+(link or servo) stopped the run; 4 a camera fault stopped it; 130 interrupted (Ctrl-C or SIGTERM). A
+stopped run keeps everything measured; ``gonio resume RUN`` continues it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import signal
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from types import FrameType
+
+from rig.run.config import RigConfig, load_rig, load_sweep, rig_config
+from rig.run.config_schema import RigFile
+
+EXIT_OK, EXIT_BAD_INPUT, EXIT_HARDWARE, EXIT_CAMERA, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
+
+
+def _rig(path: str | None) -> RigConfig:
+    return load_rig(path) if path else rig_config(RigFile(), "<built-in simulated rig>")
+
+
+@contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM (a scheduler or `kill`) stops a run the way Ctrl-C does: safely, journal intact."""
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _stopped(exc: Exception) -> int:
+    from rig.run.runner import RunStopped
+
+    if isinstance(exc, RunStopped):
+        print(f"gonio: {exc}", file=sys.stderr)
+        return {"interrupted": EXIT_INTERRUPTED, "hardware": EXIT_HARDWARE, "camera": EXIT_CAMERA}[exc.cause]
+    raise exc
+
+
+def _report(summary: object) -> None:
+    from rig.run.runner import RunSummary
+
+    assert isinstance(summary, RunSummary)
+    print(f"measured {summary.measured} points ({summary.already} from before), {summary.references} reference "
+          f"readings, {summary.drift_warnings} drift warnings")  # fmt: skip
+    print(f"table: {summary.table}")
+
+
+def _default_out(sweep: str) -> Path:
+    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+    return Path("runs") / f"{Path(sweep).stem}-{stamp}"
+
+
+def _run(args: argparse.Namespace) -> int:
+    from rig.run.runner import RunStopped
+    from rig.run.session import start_run
+
+    rig, sweep = _rig(args.rig), load_sweep(args.sweep)
+    out = Path(args.out) if args.out else _default_out(args.sweep)
+    print(f"run directory: {out}", file=sys.stderr)
+    try:
+        with _sigterm_as_interrupt():
+            _report(start_run(rig, sweep, out, progress=not args.quiet))
+    except RunStopped as exc:
+        return _stopped(exc)
+    return EXIT_OK
+
+
+def _resume(args: argparse.Namespace) -> int:
+    from rig.run.runner import RunStopped
+    from rig.run.session import resume_run
+
+    try:
+        with _sigterm_as_interrupt():
+            _report(resume_run(args.run, progress=not args.quiet))
+    except RunStopped as exc:
+        return _stopped(exc)
+    return EXIT_OK
+
+
+def _plan(args: argparse.Namespace) -> int:
+    from rig.run.session import make_plan
+
+    rig, sweep = _rig(args.rig), load_sweep(args.sweep)
+    plan = make_plan(rig, sweep)
+    print(f"rig: {rig.file.name} ({rig.path}); sweep: {sweep.file.name} ({sweep.path})")
+    if sweep.discarded:
+        print(f"{sweep.discarded} half/difference combinations leave the hemisphere and are not measurable")
+    print(plan.summary())
+    if args.list:
+        for pos, p in enumerate(plan.points):
+            angles = ", ".join(f"{v:7.2f}" for v in p.directions_deg)
+            joints = ", ".join(f"{k} {v:7.2f}" for k, v in p.joints.as_dict().items())
+            print(f"{pos:5d}  #{p.index:<5d} ({angles})  ->  {joints}")
+    return EXIT_OK
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from gonio.demo import run_demo
+
+    return run_demo(Path(args.out), points=args.points, progress=not args.quiet)
+
+
+def add_run_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``gonio run``, ``plan``, ``resume`` and ``demo``."""
+    run = sub.add_parser(
+        "run", help="measure a sweep (on the simulated rig unless --rig names hardware)",
+        description="Plan the sweep, then measure every reachable point: move, wait in position, read back "
+        "the angles, capture an HDR bracket, reduce the ROI, journal the point. Reference readings and a drift "
+        "check on the rig's schedule. Ctrl-C stops safely; `gonio resume RUN` continues. Exit codes: 0 done, "
+        "2 bad input, 3 hardware fault, 4 camera fault, 130 interrupted.",
+        epilog="Example: gonio run examples/sweep_in_plane.toml --rig examples/rig_simulated.toml --out runs/gold",
+    )  # fmt: skip
+    run.add_argument("sweep", help="sweep file (TOML)")
+    run.add_argument("--rig", help="rig file (TOML); default: the built-in simulated rig")
+    run.add_argument("--out", help="run directory to create (default: runs/<sweep>-<date>-<time>)")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.set_defaults(func=_run)
+    plan = sub.add_parser(
+        "plan", help="print a sweep's plan and time estimate without moving anything",
+        description="Generate the sweep's points, solve the rig's kinematics, list unreachable points with their "
+        "reasons, order the rest for the least move time and estimate the run time.",
+        epilog="Example: gonio plan examples/sweep_grid.toml --rig examples/rig_simulated.toml --list",
+    )  # fmt: skip
+    plan.add_argument("sweep", help="sweep file (TOML)")
+    plan.add_argument("--rig", help="rig file (TOML); default: the built-in simulated rig")
+    plan.add_argument("--list", action="store_true", help="also list every point in run order with its joints")
+    plan.set_defaults(func=_plan)
+    resume = sub.add_parser(
+        "resume", help="continue a stopped or killed run from its journal",
+        description="Reopen a run directory, rebuild its plan from the manifest and measure the points its journal "
+        "lacks. The table at the end equals that of an uninterrupted run.",
+        epilog="Example: gonio resume runs/gold",
+    )  # fmt: skip
+    resume.add_argument("run", help="run directory")
+    resume.add_argument("--quiet", action="store_true", help="no progress bar")
+    resume.set_defaults(func=_resume)
+    demo = sub.add_parser(
+        "demo", help="measure a gold sample on the simulated rig and plot it against its true BRDF",
+        description="Brings up the simulated rig (virtual servos on a pty, Mitsuba camera), runs an in-plane "
+        "sweep of a rough gold sample with reference readings, and writes the run, its table of BRDF samples and "
+        "a plot of the measured BRDF (with error bars) against the material's model.",
+        epilog="Example: gonio demo --out out/demo",
+    )  # fmt: skip
+    demo.add_argument("--out", default="out/demo", help="output directory (default: out/demo; replaced)")
+    demo.add_argument("--points", type=int, default=13, help="view angles per incidence (default 13)")
+    demo.add_argument("--quiet", action="store_true", help="no progress bar")
+    demo.set_defaults(func=_demo)

@@ -1,0 +1,165 @@
+"""``gonio sim servos`` and ``gonio sim grbl``: serve a virtual bus on a pty until Ctrl-C.
+
+The simulator package is imported only when one of these commands runs (nothing in rig imports it at
+module level), so the controller never depends on the stand-in hardware.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from rig.instrument.clock import ScaledClock
+from rig.instrument.links.dynamixel_bus import SDK_BAUDRATES
+
+
+def _ids(text: str) -> tuple[int, ...]:
+    """Parse ``1,2,3`` or ``1-4`` into servo ids 0..252."""
+    ids: list[int] = []
+    for part in text.split(","):
+        part = part.strip()
+        try:
+            if "-" in part:
+                lo, hi = (int(p) for p in part.split("-", 1))
+                ids.extend(range(lo, hi + 1))
+            else:
+                ids.append(int(part))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"servo ids {text!r}: expected e.g. 1,2,3 or 1-4") from None
+    bad = [i for i in ids if not 0 <= i <= 252]
+    if bad or not ids or len(set(ids)) != len(ids):
+        raise argparse.ArgumentTypeError(f"servo ids {text!r}: expected distinct ids in 0..252")
+    return tuple(ids)
+
+
+def _speed(text: str) -> float:
+    """Parse a positive time factor."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"speed {text!r}: expected a positive factor (1 = real time)")
+    return value
+
+
+def _announce(line: str) -> None:
+    print(line, flush=True)
+
+
+def _servos(args: argparse.Namespace) -> int:
+    from simulator.dynamixel import open_virtual_bus
+    from simulator.dynamixel.bus import serve_forever
+
+    clock = ScaledClock(args.speed)
+    with open_virtual_bus(ids=args.ids, baudrate=args.baud, clock=clock, return_delay=args.return_delay) as bus:
+        _announce(bus.port)
+        print(
+            f"virtual Dynamixel bus: XM430-W350 ids {','.join(map(str, args.ids))} at {args.baud} baud, "
+            f"time x{args.speed:g}; Ctrl-C stops",
+            file=sys.stderr,
+            flush=True,
+        )
+        serve_forever(bus)
+    return 0
+
+
+def _grbl(args: argparse.Namespace) -> int:
+    from simulator.grbl.server import serve_grbl
+
+    def ready(port: str) -> None:
+        _announce(port)
+        print(
+            f"virtual GRBL 1.1h: axes {args.axes}, 115200 baud, time x{args.speed:g}; Ctrl-C stops",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    serve_grbl(ScaledClock(args.speed), axes=args.axes, on_ready=ready)
+    return 0
+
+
+def _rig(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+    from pathlib import Path
+
+    from rig.run.config import load_rig, rig_config
+    from rig.run.config_schema import RigFile
+    from simulator.camera.simulated import SimulatedCamera
+    from simulator.from_config import spec_from
+    from simulator.rig import SimulatedRig
+
+    cfg = load_rig(args.rig) if args.rig else rig_config(RigFile(), "<built-in simulated rig>")
+    spec = replace(spec_from(cfg), time_scale=args.speed)
+    frames = Path(args.frames)
+    with SimulatedRig(spec) as sim:
+        # A RAW twin of the rig's camera: same scene and clock, frames written as DNG for any RAW reader.
+        raw = SimulatedCamera(
+            lambda: sim.radiance_now(full_frame=True), noise=spec.noise, optics=spec.optics, kind="raw",
+            clock=sim.clock, seed=spec.seed, dng_dir=frames, camera_id="gonio simulated camera (RAW)",
+        )  # fmt: skip
+        _announce(sim.port)
+        ids = ",".join(str(a.address) for a in sim.axes)
+        print(f"simulated rig {cfg.file.name!r}: servos {ids} ({', '.join(a.name for a in sim.axes)}) at "
+              f"{spec.baudrate} baud, time x{args.speed:g}; type 'capture SECONDS' for a DNG frame in {frames}, "
+              "Ctrl-D or Ctrl-C stops", file=sys.stderr, flush=True)  # fmt: skip
+        for line in sys.stdin:
+            words = line.split()
+            if len(words) == 2 and words[0] == "capture":
+                try:
+                    raw.set_exposure(float(words[1]))
+                    raw.capture()
+                except ValueError as exc:
+                    print(f"error: {exc}", flush=True)
+                    continue
+                print(sorted(frames.glob("frame_*.dng"))[-1], flush=True)
+            elif words:
+                print(f"error: {line.strip()!r}: expected 'capture SECONDS'", flush=True)
+    return 0
+
+
+def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``gonio sim servos`` and ``gonio sim grbl``."""
+    sim = sub.add_parser(
+        "sim",
+        help="serve simulated hardware on a pseudo-terminal",
+        description="Serve a virtual Dynamixel bus or GRBL controller on a pseudo-terminal. The first line on "
+        "stdout is the device path; point any client at it (gonio, dynamixel_sdk, ROBOTIS tools, a G-code sender).",
+    )
+    kinds = sim.add_subparsers(dest="sim_kind", required=True, metavar="DEVICE")
+    servos = kinds.add_parser(
+        "servos",
+        help="virtual Dynamixel Protocol 2.0 bus of XM430-W350 servos",
+        epilog="Example: gonio sim servos --ids 1-4 --baud 1000000",
+    )
+    servos.add_argument("--ids", type=_ids, default=(1, 2, 3, 4), help="servo ids, e.g. 1,2,3 or 1-4 (default 1-4)")
+    servos.add_argument(
+        "--baud",
+        type=int,
+        choices=SDK_BAUDRATES,
+        default=1_000_000,
+        metavar="BAUD",
+        help="servos' baud rate, one dynamixel_sdk accepts (default 1000000)",
+    )
+    servos.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
+    servos.add_argument(
+        "--return-delay", action="store_true", help="honour each servo's Return Delay Time in real time"
+    )
+    servos.set_defaults(func=_servos)
+    grbl = kinds.add_parser(
+        "grbl", help="virtual GRBL 1.1 motion controller", epilog="Example: gonio sim grbl --axes XYZ"
+    )
+    grbl.add_argument("--axes", default="XYZ", help="axis letters (default XYZ)")
+    grbl.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
+    grbl.set_defaults(func=_grbl)
+    rig = kinds.add_parser(
+        "rig", help="the whole simulated rig: servos on a pty and a rendered camera writing DNG frames",
+        description="Brings up the rig file's virtual servos on a pseudo-terminal (first stdout line: its path) and "
+        "a camera rendered by Mitsuba from the pose the servos hold. Drive the servos with any Dynamixel client; "
+        "type 'capture 0.01' on stdin for a 10 ms RAW frame, written as DNG into --frames.",
+        epilog="Example: gonio sim rig --rig examples/rig_simulated.toml --frames out/frames",
+    )  # fmt: skip
+    rig.add_argument("--rig", help="rig file (TOML); default: the built-in simulated rig")
+    rig.add_argument("--frames", default="out/sim-frames", help="directory for DNG frames (default out/sim-frames)")
+    rig.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
+    rig.set_defaults(func=_rig)

@@ -1,0 +1,6 @@
+"""The models in Mitsuba 3.
+
+The fastest variant that loads on this machine (variant.py), native plugins where a model matches one
+(materials.py), and the ``gonio_model`` plugin that renders any other model through its own eval
+(plugin.py). The simulator renders with these; the analysis exports with them.
+"""

@@ -1,0 +1,292 @@
+"""One owner for a Dynamixel Protocol 2.0 bus: the real ``dynamixel_sdk`` behind a lock, with bounded retries.
+
+The SDK's ``PortHandler.is_using`` is a flag, not a lock, so two threads that share a port interleave
+packets. Every transaction here runs under one re-entrant lock, and communication failures (no status
+packet, corrupt status packet) are retried a bounded number of times after flushing the input buffer.
+Status errors reported by a servo (range, limit, access ...) are not retried: they are answered the same
+way every time, so they become a ``ServoStatusError`` naming the servo, the instruction and the meaning.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import TypeVar
+
+import dynamixel_sdk as sdk
+import serial
+
+from rig.instrument.links.base import LinkError
+from rig.instrument.links.dynamixel_table import ALERT_BIT, ControlTable, describe_status_error, table_for_model
+
+SDK_BAUDRATES = (
+    9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
+    1000000, 1152000, 2000000, 2500000, 3000000, 3500000, 4000000,
+)  # fmt: skip
+"""Baud rates ``dynamixel_sdk.PortHandler.setBaudRate`` accepts (anything else it refuses)."""
+
+# Failures worth another try: a reply lost or garbled on the wire. Anything else repeats identically.
+_RETRYABLE = (sdk.COMM_RX_TIMEOUT, sdk.COMM_RX_CORRUPT, sdk.COMM_RX_FAIL, sdk.COMM_TX_FAIL, sdk.COMM_PORT_BUSY)
+
+T = TypeVar("T")
+
+
+class CommunicationError(LinkError):
+    """No valid status packet after all retries (wrong baud or id, wiring, or a servo that is gone)."""
+
+
+class ServoStatusError(LinkError):
+    """A servo answered with an error in its status packet (range, limit, access, ...)."""
+
+    def __init__(self, message: str, servo_id: int, error: int) -> None:
+        super().__init__(message)
+        self.servo_id = servo_id
+        self.error = error
+
+
+@dataclass(frozen=True)
+class Found:
+    """A servo found by a scan: its baud rate, id, model number and firmware version."""
+
+    baudrate: int
+    servo_id: int
+    model_number: int
+    firmware: int
+
+
+@dataclass(frozen=True)
+class Reading:
+    """Bytes read from one servo and the error byte of its status packet."""
+
+    data: bytes
+    error: int
+
+    @property
+    def alert(self) -> bool:
+        """Whether the servo raised its Alert bit (Hardware Error Status is non-zero)."""
+        return bool(self.error & ALERT_BIT)
+
+    def value(self, offset: int, size: int, *, signed: bool = False) -> int:
+        """Little-endian integer of ``size`` bytes at ``offset`` into the data."""
+        return int.from_bytes(self.data[offset : offset + size], "little", signed=signed)
+
+
+def check_baudrate(baudrate: int) -> int:
+    """Return ``baudrate`` if the SDK accepts it; otherwise raise ValueError listing the accepted rates."""
+    if baudrate not in SDK_BAUDRATES:
+        accepted = ", ".join(str(b) for b in SDK_BAUDRATES)
+        raise ValueError(f"baud rate {baudrate!r} is not one dynamixel_sdk accepts; expected one of {accepted}")
+    return baudrate
+
+
+class _PortHandler(sdk.PortHandler):
+    """The SDK's port handler with the reply timeout's latency term set per port instead of per module.
+
+    The SDK waits ``tx time + 2 x LATENCY_TIMER + 2`` ms for a reply, with LATENCY_TIMER a module constant
+    of 16 ms (the FTDI default). Adapters set to 1 ms deserve a shorter wait, and a loaded host talking to
+    the virtual bus a longer one, without patching the SDK for every other user in the process.
+    """
+
+    def __init__(self, port_name: str, latency_timer_ms: float) -> None:
+        super().__init__(port_name)
+        self.latency_timer_ms = latency_timer_ms
+
+    def setPacketTimeout(self, packet_length: int) -> None:
+        self.packet_start_time = self.getCurrentTime()
+        self.packet_timeout = self.tx_time_per_byte * packet_length + self.latency_timer_ms * 2.0 + 2.0
+
+
+class DynamixelBus:
+    """An open Dynamixel Protocol 2.0 port; all access is serialised through this object.
+
+    ``latency_timer_ms`` is the USB adapter's latency timer (16 ms by default on FTDI chips, 1 ms once
+    tuned); the reply timeout is twice that plus the packet's transmit time plus 2 ms, as in the SDK.
+    """
+
+    def __init__(
+        self, port: str, baudrate: int = 1_000_000, *, retries: int = 3, latency_timer_ms: float = 16.0
+    ) -> None:
+        check_baudrate(baudrate)
+        if retries < 0:
+            raise ValueError(f"retries = {retries!r}: expected a count >= 0")
+        if not latency_timer_ms > 0:
+            raise ValueError(f"latency_timer_ms = {latency_timer_ms!r}: expected a positive number of ms")
+        self.port_name = port
+        self.retries = retries
+        self._lock = threading.RLock()
+        self._port = _PortHandler(port, latency_timer_ms)
+        self._ph = sdk.PacketHandler(2.0)
+        self._port.baudrate = baudrate
+        try:
+            opened = self._port.openPort()
+        except (serial.SerialException, OSError) as exc:
+            raise LinkError(f"cannot open Dynamixel port {port!r}: {exc}") from exc
+        if not opened:
+            raise LinkError(f"cannot open Dynamixel port {port!r} at {baudrate} baud")
+        self.comm_retries_used = 0
+
+    @property
+    def baudrate(self) -> int:
+        """Current line rate in baud."""
+        return int(self._port.getBaudRate())
+
+    def set_baudrate(self, baudrate: int) -> None:
+        """Change the host's line rate (baud); the servos keep theirs."""
+        check_baudrate(baudrate)
+        with self._lock:
+            if not self._port.setBaudRate(baudrate):
+                raise LinkError(f"{self.port_name}: cannot set {baudrate} baud")
+
+    def close(self) -> None:
+        """Close the port; safe to call twice."""
+        with self._lock:
+            if self._port.is_open:
+                self._port.closePort()
+
+    def __enter__(self) -> DynamixelBus:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- transactions -------------------------------------------------------------------------------
+
+    def _transact(self, what: str, call: Callable[[], tuple[T, int, int]]) -> tuple[T, int]:
+        """Run one SDK transaction returning (value, comm result, error byte), retrying lost replies."""
+        with self._lock:
+            if not self._port.is_open:
+                raise LinkError(f"{self.port_name}: {what}: the port is closed")
+            for attempt in range(self.retries + 1):
+                try:
+                    value, result, error = call()
+                except (serial.SerialException, OSError) as exc:
+                    raise LinkError(f"{self.port_name}: {what}: {exc}") from exc
+                if result == sdk.COMM_SUCCESS:
+                    return value, error
+                if result not in _RETRYABLE or attempt == self.retries:
+                    raise CommunicationError(
+                        f"{self.port_name} at {self.baudrate} baud: {what}: {self._ph.getTxRxResult(result)} "
+                        f"(after {attempt + 1} attempt{'s' if attempt else ''}; check baud rate, id and wiring)"
+                    )
+                self.comm_retries_used += 1
+                # A late or corrupt reply may still be arriving; drop it so the retry starts clean.
+                self._port.clearPort()
+        raise AssertionError("unreachable")
+
+    def _check_status(self, servo_id: int, what: str, error: int) -> None:
+        if error & ~ALERT_BIT:
+            raise ServoStatusError(f"servo {servo_id}: {what}: {describe_status_error(error)}", servo_id, error)
+
+    def ping(self, servo_id: int) -> int:
+        """Model number of servo ``servo_id``; raises CommunicationError if it does not answer."""
+        model, _ = self._transact(f"ping servo {servo_id}", lambda: self._ph.ping(self._port, servo_id))
+        return int(model)
+
+    def try_ping(self, servo_id: int) -> int | None:
+        """Model number of servo ``servo_id``, or None if nothing answers."""
+        try:
+            return self.ping(servo_id)
+        except CommunicationError:
+            return None
+
+    def broadcast_ping(self) -> dict[int, tuple[int, int]]:
+        """Every servo answering a broadcast ping at the current baud: id -> (model number, firmware)."""
+        with self._lock:
+            found, result = self._ph.broadcastPing(self._port)
+        if result not in (sdk.COMM_SUCCESS, sdk.COMM_RX_TIMEOUT):
+            raise CommunicationError(f"{self.port_name}: broadcast ping: {self._ph.getTxRxResult(result)}")
+        return {int(i): (int(v[0]), int(v[1])) for i, v in found.items()}
+
+    def scan(self, baudrates: Iterable[int] = (57600, 1_000_000), ids: Iterable[int] | None = None) -> list[Found]:
+        """Find servos at each baud rate (by broadcast ping, or by pinging ``ids`` one by one)."""
+        original = self.baudrate
+        found: list[Found] = []
+        try:
+            for baud in baudrates:
+                self.set_baudrate(baud)
+                if ids is None:
+                    for sid, (model, fw) in sorted(self.broadcast_ping().items()):
+                        found.append(Found(baud, sid, model, fw))
+                    continue
+                for sid in ids:
+                    number = self.try_ping(sid)
+                    if number is not None:
+                        found.append(Found(baud, sid, number, self.read(sid, 6, 1)))
+        finally:
+            self.set_baudrate(original)
+        return found
+
+    def read(self, servo_id: int, address: int, size: int, *, signed: bool = False) -> int:
+        """Read a ``size``-byte register (little-endian) at ``address`` of one servo."""
+        readers = {1: self._ph.read1ByteTxRx, 2: self._ph.read2ByteTxRx, 4: self._ph.read4ByteTxRx}
+        what = f"read {size} bytes at address {address} of servo {servo_id}"
+        value, error = self._transact(what, lambda: readers[size](self._port, servo_id, address))
+        self._check_status(servo_id, what, error)
+        raw = int(value)
+        if signed and raw >= 1 << (8 * size - 1):
+            raw -= 1 << (8 * size)
+        return raw
+
+    def write(self, servo_id: int, address: int, size: int, value: int) -> int:
+        """Write a ``size``-byte register of one servo; returns the status error byte (Alert bit only)."""
+        writers = {1: self._ph.write1ByteTxRx, 2: self._ph.write2ByteTxRx, 4: self._ph.write4ByteTxRx}
+        raw = value & ((1 << (8 * size)) - 1)  # two's complement for signed goals
+        what = f"write {value} ({size} bytes) at address {address} of servo {servo_id}"
+        _, error = self._transact(what, lambda: (None, *writers[size](self._port, servo_id, address, raw)))
+        self._check_status(servo_id, what, error)
+        return error
+
+    def reboot(self, servo_id: int) -> None:
+        """Reboot one servo (clears a hardware-error shutdown; torque comes back off)."""
+        what = f"reboot servo {servo_id}"
+        _, error = self._transact(what, lambda: (None, *self._ph.reboot(self._port, servo_id)))
+        self._check_status(servo_id, what, error)
+
+    def sync_write(self, address: int, size: int, values: Mapping[int, int]) -> None:
+        """Write one register on several servos in one SYNC_WRITE packet (no replies)."""
+        group = sdk.GroupSyncWrite(self._port, self._ph, address, size)
+        for sid, value in values.items():
+            raw = (value & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
+            group.addParam(sid, list(raw))
+        what = f"sync write of address {address} to servos {sorted(values)}"
+        self._transact(what, lambda: (None, group.txPacket(), 0))
+
+    def _group_read(self, what: str, group: object, sizes: Mapping[int, int]) -> dict[int, Reading]:
+        """Send a sync or bulk read ``group`` and collect each servo's status packet with its error byte."""
+
+        def call() -> tuple[dict[int, Reading], int, int]:
+            # The SDK groups' rxPacket drops the error byte, and with it the Alert bit: read replies ourselves.
+            result = group.txPacket()  # type: ignore[attr-defined]
+            out: dict[int, Reading] = {}
+            if result != sdk.COMM_SUCCESS:
+                return out, result, 0
+            for sid, size in sizes.items():
+                data, result, error = self._ph.readRx(self._port, sid, size)
+                if result != sdk.COMM_SUCCESS:
+                    return out, result, 0
+                out[sid] = Reading(bytes(data), int(error))
+            return out, sdk.COMM_SUCCESS, 0
+
+        readings, _ = self._transact(what, call)
+        return readings
+
+    def sync_read(self, address: int, size: int, ids: Sequence[int]) -> dict[int, Reading]:
+        """Read one block from several servos with one SYNC_READ; keeps each servo's error byte."""
+        group = sdk.GroupSyncRead(self._port, self._ph, address, size)
+        for sid in ids:
+            group.addParam(sid)
+        what = f"sync read of {size} bytes at {address} from servos {list(ids)}"
+        return self._group_read(what, group, dict.fromkeys(ids, size))
+
+    def bulk_read(self, requests: Mapping[int, tuple[int, int]]) -> dict[int, Reading]:
+        """Read a different block (address, size) from each servo with one BULK_READ."""
+        group = sdk.GroupBulkRead(self._port, self._ph)
+        for sid, (address, size) in requests.items():
+            group.addParam(sid, address, size)
+        sizes = {sid: size for sid, (_, size) in requests.items()}
+        return self._group_read(f"bulk read from servos {sorted(requests)}", group, sizes)
+
+    def table(self, servo_id: int) -> ControlTable:
+        """The control table layout of servo ``servo_id``, from its model number."""
+        return table_for_model(self.ping(servo_id), where=f"servo {servo_id} on {self.port_name}")

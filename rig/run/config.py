@@ -1,0 +1,312 @@
+"""Load rig and sweep files (TOML), validate them strictly, and turn them into the objects the runner uses.
+
+Every mistake raises ``ConfigError`` with the file, the key (as a dotted TOML path), the bad value and
+what was expected; unknown keys are errors. The schema, with units and defaults, is ``rig.run.config_schema``.
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+import numpy.typing as npt
+from pydantic import BaseModel, ValidationError
+
+import model
+from model.base import Model
+from rig.instrument.axis import Axis
+from rig.instrument.geometry import GeometryError, JointLimits, RigGeometry
+from rig.instrument.links.dynamixel_table import X_SERIES
+from rig.run import registry
+from rig.run.config_schema import RigFile, SweepFile
+
+FloatArray = npt.NDArray[np.float64]
+M = TypeVar("M", bound=BaseModel)
+
+
+class ConfigError(ValueError):
+    """A rig or sweep file is unreadable or invalid; the message names the file, key, value and expectation."""
+
+
+def _key(loc: tuple[int | str, ...]) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out or "(top level)"
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _plain(value: Any) -> Any:
+    return [_plain(v) for v in value] if isinstance(value, tuple) else value
+
+
+def _allowed_keys(model: type[BaseModel], loc: tuple[int | str, ...]) -> list[str]:
+    """The keys the table at ``loc`` accepts (for an unknown-key message)."""
+    current: Any = model
+    parts = list(loc[:-1])
+    while parts and current is not None:
+        part = parts.pop(0)
+        info = current.model_fields.get(part) if isinstance(part, str) else None
+        ann = info.annotation if info is not None else None
+        if typing.get_origin(ann) is dict:
+            # A table of named tables such as [axes.<joint>]: skip the free name, go on in its value's model.
+            ann = typing.get_args(ann)[1]
+            parts = parts[1:]
+        current = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
+    return sorted(current.model_fields) if current is not None else []
+
+
+def _clean(loc: tuple[int | str, ...]) -> tuple[int | str, ...]:
+    # Union members add their type's name to the path ("constrained-float", "tuple[...]"): not TOML keys.
+    return tuple(p for p in loc if isinstance(p, int) or re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", p))
+
+
+def _messages(path: Path, model: type[BaseModel], err: ValidationError) -> str:
+    lines = []
+    errors = err.errors()
+    locs = [_clean(tuple(e["loc"])) for e in errors]
+    for e, loc in zip(errors, locs, strict=True):
+        if any(len(other) > len(loc) and other[: len(loc)] == loc for other in locs):
+            continue  # a union's member reported something more precise under this key
+        key = _key(loc)
+        if e["type"] == "extra_forbidden":
+            allowed = _allowed_keys(model, loc)
+            lines.append(f"{path}: {key} = {_short(e['input'])}: unknown key; expected one of {', '.join(allowed)}")
+        elif e["type"] == "missing" and loc and isinstance(loc[-1], int):
+            lines.append(f"{path}: {_key(loc[:-1])}: too few items; expected at least {loc[-1] + 1}")
+        elif e["type"] == "missing":
+            lines.append(f"{path}: {key}: missing; this key is required")
+        elif e["type"] == "value_error":
+            # Checks across keys of one table: the message names the keys itself.
+            lines.append(f"{path}: [{key}] {str(e['msg']).removeprefix('Value error, ')}")
+        else:
+            msg = str(e["msg"])
+            msg = "a value " + msg.removeprefix("Input should be ") if msg.startswith("Input should be ") else msg
+            msg = msg.replace("a value a ", "a ").replace("a value an ", "an ")
+            shown = _short(_plain(e["input"])) if not isinstance(e["input"], dict) else "(table)"
+            head = f"{path}: {key} = {shown}: expected "
+            text = msg[0].lower() + msg[1:] if msg else "a valid value"
+            same = [i for i, line in enumerate(lines) if line.startswith(head)]
+            if same:  # one key failing every member of a union: say what each member wanted
+                lines[same[0]] += f" or {text}"
+            else:
+                lines.append(head + text)
+    return "\n".join(lines)
+
+
+def _load(path: str | Path, model: type[M]) -> M:
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: no such file") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read: {exc.strerror}") from None
+    return parse(data, model, p)
+
+
+def parse(data: Mapping[str, Any], model: type[M], path: str | Path = "<memory>") -> M:
+    """Validate a parsed TOML document against a schema model; ConfigError names file, key and value."""
+    try:
+        return model.model_validate(dict(data))
+    except ValidationError as exc:
+        raise ConfigError(_messages(Path(path), model, exc)) from None
+
+
+def default_axes(geometry: RigGeometry, first_id: int = 1) -> tuple[Axis, ...]:
+    """One XM430-W350 per joint of the layout, ids from ``first_id``, joint 0 at mid-travel, rig limits."""
+    axes = []
+    for i, name in enumerate(geometry.joint_names):
+        lo, hi = geometry.limits.of(name)
+        axes.append(Axis(name=name, address=first_id + i, units_per_degree=X_SERIES.ticks_per_degree,
+                         zero_offset_deg=-180.0, min_deg=lo, max_deg=hi, tolerance_deg=0.2))  # fmt: skip
+    return tuple(axes)
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """A validated rig file: the parsed tables, the geometry and the axes built from them."""
+
+    path: Path
+    file: RigFile
+    geometry: RigGeometry
+    axes: tuple[Axis, ...]
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """A validated sweep file: the parsed tables and the BRDF directions (N, 4) in degrees it asks for."""
+
+    path: Path
+    file: SweepFile
+    directions_deg: FloatArray
+    discarded: int = 0
+
+
+def _geometry(path: Path, cfg: RigFile) -> RigGeometry:
+    g = cfg.geometry
+    try:
+        limits = JointLimits(**{k: tuple(v) for k, v in g.limits.model_dump().items()})
+        values = g.model_dump(exclude={"limits"})
+        return RigGeometry(**values, limits=limits)
+    except GeometryError as exc:
+        raise ConfigError(f"{path}: [geometry] {exc}") from None
+
+
+def _axes(path: Path, cfg: RigFile, geometry: RigGeometry) -> tuple[Axis, ...]:
+    joints = geometry.joint_names
+    unknown = sorted(set(cfg.axes) - set(joints))
+    if unknown:
+        raise ConfigError(
+            f"{path}: axes.{unknown[0]}: no such joint in layout {geometry.layout!r}; "
+            f"expected one of {', '.join(joints)}"
+        )
+    defaults = {a.name: a for a in default_axes(geometry)}
+    traits = registry.load(cfg.link.kind)
+    letters = traits.addressing == "letter"
+    out = []
+    for name in joints:
+        table = cfg.axes.get(name)
+        if table is None:
+            if not traits.default_axes:
+                raise ConfigError(f"{path}: axes.{name}: missing; a {cfg.link.kind} link needs a table for every joint")
+            out.append(defaults[name])
+            continue
+        if letters and table.letter is None:
+            raise ConfigError(f"{path}: axes.{name}.id = {table.id!r}: expected letter (a GRBL axis such as 'X')")
+        if not letters and table.id is None:
+            raise ConfigError(f"{path}: axes.{name}.letter = {table.letter!r}: expected id (a Dynamixel id 0..252)")
+        lo, hi = geometry.limits.of(name)
+        upd = table.units_per_degree
+        if upd is None:
+            if letters:
+                raise ConfigError(
+                    f"{path}: axes.{name}.units_per_degree: missing; a GRBL axis needs its steps per degree"
+                )
+            upd = X_SERIES.ticks_per_degree
+        try:
+            out.append(Axis(
+                name=name, address=table.id if table.id is not None else str(table.letter), units_per_degree=upd,
+                gear_ratio=table.gear_ratio, direction=table.direction, zero_offset_deg=table.zero_offset_deg,
+                min_deg=lo if table.min_deg is None else table.min_deg,
+                max_deg=hi if table.max_deg is None else table.max_deg,
+                max_speed_deg_s=table.max_speed_deg_s, max_accel_deg_s2=table.max_accel_deg_s2,
+                tolerance_deg=table.tolerance_deg,
+            ))  # fmt: skip
+        except ValueError as exc:
+            raise ConfigError(f"{path}: axes.{name}: {exc}") from None
+    ids = [a.address for a in out]
+    if len(set(ids)) != len(ids):
+        dup = next(i for i in ids if ids.count(i) > 1)
+        raise ConfigError(f"{path}: axes: address {dup!r} is used by two joints; expected one servo per joint")
+    return tuple(out)
+
+
+def load_rig(path: str | Path) -> RigConfig:
+    """Load and validate a rig file (TOML); raises ConfigError naming the file, key, value and expectation."""
+    p = Path(path)
+    cfg = _load(p, RigFile)
+    return rig_config(cfg, p)
+
+
+def rig_config(cfg: RigFile, path: str | Path = "<default rig>") -> RigConfig:
+    """A RigConfig from an already validated rig table (e.g. the built-in simulated rig)."""
+    p = Path(path)
+    geometry = _geometry(p, cfg)
+    axes = _axes(p, cfg, geometry)
+    cam = cfg.camera
+    if cam.roi is not None:
+        x0, y0, x1, y1 = cam.roi
+        # A real camera's frame size is known only once it delivers a frame; the simulated one renders `resolution`.
+        w, h = cam.resolution if cam.backend == "simulated" else (2**31, 2**31)
+        if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
+            where = f" inside {w}x{h} pixels" if cam.backend == "simulated" else " with x0 < x1 and y0 < y1"
+            raise ConfigError(f"{p}: camera.roi = {list(cam.roi)!r}: expected a box (x0, y0, x1, y1){where}")
+    traits = registry.load(cfg.link.kind)
+    if traits.cameras and cam.backend not in traits.cameras:
+        raise ConfigError(f"{p}: camera.backend = {cam.backend!r}: a {cfg.link.kind} link needs the "
+                          f"{registry.listing(traits.cameras)} camera")  # fmt: skip
+    if cfg.reference.kind not in ("manual", "none", *traits.references):
+        raise ConfigError(f"{p}: reference.kind = {cfg.reference.kind!r}: only a rig whose backend provides it has "
+                          f"a {cfg.reference.kind} reference")  # fmt: skip
+    return RigConfig(p, cfg, geometry, axes)
+
+
+def _directions(path: Path, cfg: SweepFile) -> tuple[FloatArray, int]:
+    from rig.run import sweeps  # the sweep generators are only needed once a sweep file is loaded
+
+    s = cfg.sweep
+    try:
+        if s.kind == "grid":
+            assert s.theta_i_deg is not None and s.theta_o_deg is not None
+            d = sweeps.grid(s.theta_i_deg, s.theta_o_deg, s.phi_o_deg or (180.0,), s.phi_i_deg or (0.0,))
+            discarded = 0
+        elif s.kind == "in_plane":
+            assert s.theta_i_deg is not None and s.theta_o_deg is not None
+            d = sweeps.in_plane(s.theta_i_deg, s.theta_o_deg)
+            discarded = 0
+        elif s.kind == "rusinkiewicz":
+            assert s.theta_h_deg is not None and s.theta_d_deg is not None and s.phi_d_deg is not None
+            hd = sweeps.rusinkiewicz_sweep(s.theta_h_deg, s.theta_d_deg, s.phi_d_deg, s.phi_h_deg or (0.0,))
+            d, discarded = hd.points, hd.below_horizon_count
+        else:
+            assert s.points is not None
+            d = sweeps.explicit(s.points)
+            discarded = 0
+    except ValueError as exc:
+        raise ConfigError(f"{path}: sweep: {exc}") from None
+    if s.isotropic:
+        d = sweeps.isotropic(d)
+    if len(d) == 0:
+        raise ConfigError(f"{path}: sweep: the {s.kind!r} sweep has no points above the horizon")
+    return d, discarded
+
+
+def load_sweep(path: str | Path) -> SweepConfig:
+    """Load and validate a sweep file (TOML) and generate its directions; ConfigError on any mistake."""
+    p = Path(path)
+    cfg = _load(p, SweepFile)
+    return sweep_config(cfg, p)
+
+
+def sweep_config(cfg: SweepFile, path: str | Path = "<sweep>") -> SweepConfig:
+    """A SweepConfig from an already validated sweep table."""
+    p = Path(path)
+    cap = cfg.capture
+    if cap.exposures_s is not None and len(cap.exposures_s) == 0:
+        raise ConfigError(f"{p}: capture.exposures_s = []: expected at least one exposure in seconds, or no key")
+    d, discarded = _directions(p, cfg)
+    return SweepConfig(p, cfg, d, discarded)
+
+
+def material_from(rig: RigConfig) -> Model:
+    """The sample's model from ``[simulation.material]``: a model class of the model module and its parameters."""
+    table = rig.file.simulation.material
+    cls = getattr(model, table.model, None)
+    if not (isinstance(cls, type) and issubclass(cls, Model)) or cls is Model:
+        names = sorted(n for n in dir(model) if isinstance(getattr(model, n), type)
+                       and issubclass(getattr(model, n), Model) and getattr(model, n) is not Model)  # fmt: skip
+        raise ConfigError(
+            f"{rig.path}: simulation.material.model = {table.model!r}: expected one of {', '.join(names)}"
+        )
+    try:
+        return cls(**table.parameters())
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{rig.path}: simulation.material: {exc}") from None

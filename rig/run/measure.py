@@ -1,0 +1,243 @@
+"""One reading of whatever the camera sees: plan the exposures, capture the bracket and darks, merge, reduce.
+
+The exposure plan comes from the previous point's light level (``RoiLevel`` per colour channel, rebuilt from
+the numbers the journal keeps, so a resumed run plans exactly what an uninterrupted one did) or, with no
+level yet or when the planned bracket clipped, from metering test frames. A fixed list of exposures skips
+planning. The previous point only predicts this one's level: where this point turns out darker and its
+dimmest channel falls short of the SNR goal, a second bracket planned from its own level tops it up.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from acquisition.exposure.metering import meter
+from acquisition.exposure.plan import plan_exposure
+from acquisition.exposure.spec import CameraTiming, RoiLevel
+from acquisition.frame import Camera, Frame
+from acquisition.hdr.merge import HdrImage, merge_linear
+from acquisition.noise import SensorNoise
+from acquisition.roi import RoiError, RoiReading, reduce_roi
+
+Box = tuple[int, int, int, int]
+
+
+@dataclass(frozen=True)
+class CaptureSettings:
+    """How each reading is exposed: SNR target of the ROI mean, frame limits, darks, ROI box (pixels)."""
+
+    noise: SensorNoise
+    timing: CameraTiming
+    target_snr: float = 200.0
+    exposures_s: tuple[float, ...] | None = None
+    max_frames: int = 5
+    dark_frames: int = 1
+    first_exposure_s: float = 0.01
+    roi: Box | None = None
+
+
+#: A reading whose dimmest channel reaches less than this fraction of the SNR goal is topped up.
+TOP_UP_BELOW = 0.95
+
+
+@dataclass(frozen=True)
+class Level:
+    """An ROI's light level in counts/s at gain 1 (peak, mean, darkest pixel) over ``n_pixels`` pixels.
+
+    ``channel_means`` holds each colour channel's ROI mean (counts/s); empty for a grey frame or a journal
+    written before it was kept, when the overall mean stands in for every channel.
+    """
+
+    peak: float
+    mean: float
+    dark: float
+    n_pixels: int
+    channel_means: tuple[float, ...] = ()
+
+    def roi_level(self) -> list[RoiLevel]:
+        """The acquisition module's RoiLevel per channel for planning (the dimmest sets the SNR)."""
+        # A dark channel's mean is noise about zero and may be negative: plan for no light, not an error.
+        means = [min(max(m, 0.0), self.peak) for m in (self.channel_means or (self.mean,))]
+        return [RoiLevel(self.peak, m, self.n_pixels, min(self.dark, m)) for m in means]
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready form (for the journal)."""
+        d: dict[str, Any] = {"peak": self.peak, "mean": self.mean, "dark": self.dark, "n_pixels": self.n_pixels}
+        if self.channel_means:
+            d["channel_means"] = list(self.channel_means)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Level:
+        """Inverse of ``as_dict``."""
+        means = tuple(float(m) for m in d.get("channel_means", ()))
+        return cls(float(d["peak"]), float(d["mean"]), float(d["dark"]), int(d["n_pixels"]), means)
+
+
+@dataclass(frozen=True)
+class Reading:
+    """A merged, reduced reading (counts/s) with the exposures that made it and the level for the next plan."""
+
+    roi: RoiReading
+    hdr: HdrImage
+    exposures_s: tuple[float, ...]
+    dark_exposures_s: tuple[float, ...]
+    test_exposures_s: tuple[float, ...]
+    level: Level
+    notes: tuple[str, ...]
+
+
+def _counts_above_black(frame: Frame) -> npt.NDArray[np.float64]:
+    black = np.asarray(frame.black_level, dtype=np.float64)
+    data = np.asarray(frame.data, dtype=np.float64)
+    if black.ndim == 1 and data.ndim == 3 and black.size == data.shape[-1]:
+        return data - black
+    return data - float(np.max(black))
+
+
+def _crop(a: npt.NDArray[Any], roi: Box | None) -> npt.NDArray[Any]:
+    if roi is None:
+        return a
+    x0, y0, x1, y1 = roi
+    return a[y0:y1, x0:x1]
+
+
+def _shoot(camera: Camera, exposure_s: float) -> Frame:
+    camera.set_exposure(exposure_s)
+    return camera.capture()
+
+
+def _darks(camera: Camera, exposures: tuple[float, ...], n: int) -> tuple[dict[float, list[Frame]], tuple[float, ...]]:
+    take_dark = getattr(camera, "capture_dark", None)
+    if n == 0 or take_dark is None:
+        return {}, ()
+    darks: dict[float, list[Frame]] = {}
+    taken: list[float] = []
+    for t in sorted(set(exposures)):
+        applied = camera.set_exposure(t).exposure_s
+        darks[applied] = [take_dark() for _ in range(n)]
+        taken += [applied] * n
+    return darks, tuple(taken)
+
+
+def level_of(hdr: HdrImage, roi: Box | None) -> Level:
+    """The ROI's level (counts/s) from a merged image: peak, mean and 1st-percentile pixel over channels."""
+    rad = _crop(hdr.radiance, roi)
+    finite = rad[np.isfinite(rad)]
+    n = int(rad.shape[0] * rad.shape[1])
+    if finite.size == 0:
+        return Level(0.0, 0.0, 0.0, n)
+    means: tuple[float, ...] = ()
+    if rad.ndim == 3 and rad.shape[-1] > 1:
+        # A clipped pixel is not finite; a channel with none left keeps the overall mean, not a NaN.
+        with np.errstate(invalid="ignore"):
+            per = np.nanmean(np.where(np.isfinite(rad), rad, np.nan).reshape(-1, rad.shape[-1]), axis=0)
+        means = tuple(float(m) if np.isfinite(m) else float(finite.mean()) for m in per)
+    return Level(float(finite.max()), float(finite.mean()), float(max(np.percentile(finite, 1.0), 0.0)), n, means)
+
+
+def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | None) -> Reading:
+    """Plan, capture, merge and reduce one reading of the camera's ROI, in counts/s at gain 1."""
+    if settings.exposures_s is not None:
+        return _capture(camera, settings, tuple(settings.exposures_s), (), ())
+    notes: tuple[str, ...] = ()
+    if previous is not None and previous.peak > 0:
+        plan = plan_exposure(previous.roi_level(), settings.noise, settings.target_snr, settings.timing,
+                             max_frames=settings.max_frames, dark_frames=settings.dark_frames)  # fmt: skip
+        frames = _frames(camera, plan.exposures_s)
+        try:
+            reading = _roi_check(settings, frames)
+        except RoiError:
+            # Every ROI pixel clipped in every frame (a dark point followed by a specular peak): meter.
+            notes = ("the bracket planned from the previous point clipped every pixel: metered afresh",)
+        else:
+            # Clipped pixels would be left out of the mean, and they are the brightest: never keep that.
+            if not reading.roi.lower_bound and not np.any(reading.roi.n_flagged):
+                return _topped_up(camera, settings, frames, reading)
+            notes = ("the bracket planned from the previous point clipped: metered afresh",)
+
+    def take_roi(t: float) -> npt.NDArray[np.float64]:
+        return _crop(_counts_above_black(_shoot(camera, t)), settings.roi)
+
+    metered = meter(take_roi, settings.noise, settings.target_snr, settings.timing,
+                    start_exposure_s=settings.first_exposure_s, dark_frames=settings.dark_frames,
+                    max_frames=settings.max_frames)  # fmt: skip
+    return _capture(camera, settings, metered.plan.exposures_s, metered.test_exposures_s, notes + metered.notes)
+
+
+def snr_reached(reading: RoiReading) -> float:
+    """The reading's photon-and-read-noise SNR in its dimmest channel; inf where no channel has noise.
+
+    The propagated error is what exposure controls; the pixel scatter of a small ROI is itself noisy, and
+    where it is real (a gradient across the ROI) more frames would not shrink it.
+    """
+    mean = np.atleast_1d(np.asarray(reading.mean, dtype=np.float64))
+    se = np.atleast_1d(np.asarray(reading.std_error_propagated, dtype=np.float64))
+    ok = se > 0
+    return float(np.min(np.abs(mean[ok]) / se[ok])) if np.any(ok) else float("inf")
+
+
+def _topped_up(camera: Camera, settings: CaptureSettings, frames: list[Frame], first: Reading) -> Reading:
+    """The reading with darks, after a second bracket where the first fell short of the SNR goal."""
+    reached = snr_reached(first.roi)
+    notes: tuple[str, ...] = ()
+    if reached < TOP_UP_BELOW * settings.target_snr and first.level.peak > 0:
+        # Inverse-variance merging adds SNRs in quadrature: plan only the part still missing.
+        missing = float(np.sqrt(settings.target_snr**2 - reached**2))
+        plan = plan_exposure(first.level.roi_level(), settings.noise, missing, settings.timing,
+                             max_frames=settings.max_frames, dark_frames=settings.dark_frames)  # fmt: skip
+        frames = frames + _frames(camera, plan.exposures_s)
+        notes = (f"SNR {reached:.0f} of {settings.target_snr:g} from the bracket planned on the previous point: "
+                 f"topped up with {len(plan.exposures_s)} more frame(s)",)  # fmt: skip
+    return _merge(camera, settings, frames, (), notes)
+
+
+def _roi_check(settings: CaptureSettings, frames: list[Frame]) -> Reading:
+    """The frames merged over the ROI alone, without darks: enough to judge them, at the ROI's cost.
+
+    The crop is widened to even pixel bounds so a raw mosaic keeps its colour-filter phase.
+    """
+    check = dataclasses.replace(settings, dark_frames=0)
+    if settings.roi is not None:
+        x0, y0, x1, y1 = settings.roi
+        cx, cy = x0 - x0 % 2, y0 - y0 % 2
+        box = (cx, cy, x1 + x1 % 2, y1 + y1 % 2)
+        frames = [dataclasses.replace(f, data=_crop(f.data, box)) for f in frames]
+        check = dataclasses.replace(check, roi=(x0 - cx, y0 - cy, x1 - cx, y1 - cy))
+    return _merge(None, check, frames, (), ())
+
+
+def _capture(
+    camera: Camera,
+    settings: CaptureSettings,
+    exposures: tuple[float, ...],
+    test: tuple[float, ...],
+    notes: tuple[str, ...],
+) -> Reading:
+    return _merge(camera, settings, _frames(camera, exposures), test, notes)
+
+
+def _frames(camera: Camera, exposures: tuple[float, ...]) -> list[Frame]:
+    return [_shoot(camera, t) for t in exposures]
+
+
+def _merge(
+    camera: Camera | None,
+    settings: CaptureSettings,
+    frames: list[Frame],
+    test: tuple[float, ...],
+    notes: tuple[str, ...],
+) -> Reading:
+    """Merge and reduce the frames, with the camera's dark frames (none without a camera)."""
+    applied = tuple(f.exposure_s for f in frames)
+    darks, dark_taken = _darks(camera, applied, settings.dark_frames) if camera is not None else ({}, ())
+    hdr = merge_linear(frames, settings.noise, darks=darks or None)
+    h, w = hdr.radiance.shape[:2]
+    roi = settings.roi if settings.roi is not None else (0, 0, w, h)
+    reading = reduce_roi(hdr.radiance, hdr.variance, roi, flags=hdr.saturated)
+    return Reading(reading, hdr, applied, dark_taken, test, level_of(hdr, roi), notes)

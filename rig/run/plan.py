@@ -1,0 +1,396 @@
+"""Sweep plans: reachability checked, points ordered for the shortest run, and the run time estimated.
+
+``plan_sweep`` takes the rows of a sweep (``rig.run.sweeps``: theta_i, phi_i, theta_o, phi_o in degrees), solves
+the kinematics for all of them at once, and splits them into points to measure and points skipped
+with the kinematics' reason code and message; nothing is dropped silently (``len(points) +
+len(skipped)`` is the number of rows). A point the geometry reaches but an ``Axis`` cannot (its
+``min_deg``/``max_deg`` are narrower than the geometry's joint limits, or the joint has no axis at all
+and would have to move) is skipped with reason ``joint_limit`` and the axis named in the detail.
+
+Move time model (``move_time_s``): every move starts and ends at rest. Independent axes (the Dynamixel
+link: one synchronous write, each servo runs its own trapezoid) take the slowest axis's time;
+``coordinated=True`` models GRBL's straight G1 moves, where all axes share one trapezoid along the
+path and arrive together. ``Axis`` requires positive, finite speed and acceleration limits, so there is
+no "unlimited" case. Links quantise these limits (a Dynamixel's Profile Velocity/Acceleration units,
+its 46 rpm no-load speed), so a servo may run slightly faster or slower than the estimate.
+
+Ordering (``order_points``, ``rig.run.plan_order``) minimises the summed move time of the open path from the
+start pose through every point: greedy nearest neighbour, then 2-opt and Or-opt (on windows, then on the
+whole move-time matrix up to 1000 points) until no move improves it; deterministic, and never worse than
+the order the sweep was generated in. Reference captures are placed after ordering and are not
+considered by it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from rig.instrument.axis import Axis, AxisLimitError
+from rig.instrument.geometry import RigGeometry
+from rig.instrument.kinematics import Branch, Joints, Reason, Solution, solve_degrees
+from rig.run.plan_order import FloatArray, order_path, pairwise_times, step_times
+
+__all__ = [
+    "Plan",
+    "PlannedPoint",
+    "SkippedPoint",
+    "TimeEstimate",
+    "format_duration",
+    "move_time_s",
+    "order_points",
+    "plan_sweep",
+]
+
+Directions = tuple[float, float, float, float]
+#: A joint without an axis is fixed; a point may differ from its fixed value by this much (degrees).
+FIXED_JOINT_TOL_DEG = 1e-6
+
+
+@dataclass(frozen=True)
+class PlannedPoint:
+    """A point to measure: its row in the sweep as generated (``index``), its directions and joints in degrees.
+
+    ``directions_deg`` is the sweep's row. With ``plan_sweep(isotropic=True)`` the joints measure it
+    turned about the sample normal (equivalent for an isotropic sample); ``forward(joints)`` gives the
+    directions actually measured.
+    """
+
+    index: int
+    directions_deg: Directions
+    joints: Joints
+
+
+@dataclass(frozen=True)
+class SkippedPoint:
+    """A row the rig cannot measure: its ``index`` and directions in degrees, a ``Reason`` code and why."""
+
+    index: int
+    directions_deg: Directions
+    reason: str
+    detail: str
+
+
+@dataclass(frozen=True)
+class TimeEstimate:
+    """Estimated run time in seconds, by cause; ``reference_s`` includes the detours to the reference pose."""
+
+    motion_s: float
+    settle_s: float
+    exposure_s: float
+    reference_s: float
+    overhead_s: float
+    reference_captures: int = 0
+
+    @property
+    def total_s(self) -> float:
+        """The whole run in seconds."""
+        return self.motion_s + self.settle_s + self.exposure_s + self.reference_s + self.overhead_s
+
+
+def format_duration(seconds: float) -> str:
+    """A duration in seconds as text: "4.2 s", "42 s", "12 min 05 s", "1 h 02 min"."""
+    if not np.isfinite(seconds):
+        return "unknown"
+    s = max(float(seconds), 0.0)
+    if s < 9.95:
+        return f"{s:.1f} s"
+    if round(s) < 60:
+        return f"{round(s)} s"
+    if round(s) < 3600:
+        m, sec = divmod(round(s), 60)
+        return f"{m} min {sec:02d} s"
+    h, m = divmod(round(s / 60.0), 60)
+    return f"{h} h {m:02d} min"
+
+
+def _fmt_row(d: Directions) -> str:
+    return "(" + ", ".join(f"{v:g}" for v in d) + ") deg"
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A sweep ready to run: points in execution order, skipped points with reasons, the time estimate.
+
+    ``reference_before`` lists positions k in ``points`` before which a reference is captured
+    (k = len(points) means after the last point); ``reference_joints`` is where (None: where it stands).
+    ``motion_as_generated_s`` is the motion time (seconds) in the sweep's own order, when it was reordered.
+    """
+
+    points: tuple[PlannedPoint, ...]
+    skipped: tuple[SkippedPoint, ...]
+    estimate: TimeEstimate
+    start: Joints
+    reference_before: tuple[int, ...] = ()
+    reference_joints: Joints | None = None
+    motion_as_generated_s: float | None = None
+
+    def summary(self, examples: int = 3) -> str:
+        """Human-readable plan: counts, unreachable points grouped by reason with examples, time by cause."""
+        total = len(self.points) + len(self.skipped)
+        lines = [f"Sweep of {total} points: {len(self.points)} to measure, {len(self.skipped)} unreachable"]
+        groups: dict[str, list[SkippedPoint]] = {}
+        for s in self.skipped:
+            groups.setdefault(s.reason, []).append(s)
+        for reason, items in sorted(groups.items(), key=lambda kv: (-len(kv[1]), kv[0])):
+            lines.append(f"  {reason}: {len(items)} point{'s' if len(items) != 1 else ''}")
+            lines.extend(f"    #{s.index} {_fmt_row(s.directions_deg)}: {s.detail}" for s in items[:examples])
+            if len(items) > examples:
+                lines.append(f"    ... and {len(items) - examples} more")
+        e = self.estimate
+        lines.append(f"Estimated run time: {format_duration(e.total_s)}")
+        parts = [
+            ("motion", e.motion_s, ""),
+            ("settling", e.settle_s, ""),
+            ("exposures", e.exposure_s, ""),
+            ("references", e.reference_s, f" ({e.reference_captures} captures)"),
+            ("overhead", e.overhead_s, ""),
+        ]
+        if self.motion_as_generated_s is not None:
+            parts[0] = ("motion", e.motion_s, f" (ordered; {format_duration(self.motion_as_generated_s)} as generated)")
+        lines.extend(f"  {name:<11}{format_duration(value):>14}{note}" for name, value, note in parts)
+        return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Move times
+
+
+def _axis_map(axes: Sequence[Axis]) -> dict[str, Axis]:
+    out: dict[str, Axis] = {}
+    for axis in axes:
+        if axis.name in out:
+            raise ValueError(f"two axes are named {axis.name!r}")
+        out[axis.name] = axis
+    return out
+
+
+def _limits(axes: dict[str, Axis], names: Sequence[str]) -> tuple[FloatArray, FloatArray]:
+    """Speed (deg/s) and acceleration (deg/s^2) limits of the named axes, as arrays."""
+    return (
+        np.array([axes[n].max_speed_deg_s for n in names], dtype=np.float64),
+        np.array([axes[n].max_accel_deg_s2 for n in names], dtype=np.float64),
+    )
+
+
+def move_time_s(a: Joints, b: Joints, axes: Sequence[Axis], *, coordinated: bool = False) -> float:
+    """Seconds to move from joints ``a`` to ``b`` (degrees), rest to rest, under each axis's speed and accel limits.
+
+    Independent axes take the slowest axis's trapezoid (triangle when too short to reach full speed);
+    ``coordinated`` shares one trapezoid along the straight path (GRBL). A joint with no axis must not move.
+    """
+    by_name = _axis_map(axes)
+    da, db = a.as_dict(), b.as_dict()
+    if set(da) != set(db):
+        raise ValueError(f"joints differ: {sorted(da)} and {sorted(db)}")
+    moving = []
+    for name in da:
+        va, vb = float(np.asarray(da[name])), float(np.asarray(db[name]))
+        if name in by_name:
+            moving.append((name, va, vb))
+        elif abs(va - vb) > FIXED_JOINT_TOL_DEG:
+            raise ValueError(f"joint {name!r} moves from {va:g} to {vb:g} deg but no axis drives it")
+    names = [m[0] for m in moving]
+    speed, accel = _limits(by_name, names)
+    src = np.array([[m[1] for m in moving]], dtype=np.float64)
+    dst = np.array([[m[2] for m in moving]], dtype=np.float64)
+    return float(pairwise_times(src, dst, speed, accel, coordinated)[0, 0])
+
+
+def _moving_matrix(
+    joints: Sequence[Joints], axes: dict[str, Axis], start: Joints
+) -> tuple[FloatArray, FloatArray, list[str]]:
+    """Joint angles (n, k) and start (k,) in degrees of the joints that have axes; fixed joints must not move."""
+    names = list(start.as_dict())
+    moving = [n for n in names if n in axes]
+    x = np.array([[float(np.asarray(getattr(j, n))) for n in names] for j in joints], dtype=np.float64)
+    s = np.array([float(np.asarray(getattr(start, n))) for n in names], dtype=np.float64)
+    x = x.reshape(len(joints), len(names))
+    for c, name in enumerate(names):
+        if name not in axes and len(x) and np.max(np.abs(x[:, c] - s[c])) > FIXED_JOINT_TOL_DEG:
+            raise ValueError(f"joint {name!r} has no axis but its angle changes between points")
+    keep = [names.index(n) for n in moving]
+    return x[:, keep], s[keep], moving
+
+
+def order_points(
+    joints: Sequence[Joints], axes: Sequence[Axis], start: Joints, *, coordinated: bool = False
+) -> list[int]:
+    """Order (indices into ``joints``) minimising the total move time in seconds from ``start`` through all points.
+
+    Greedy nearest neighbour, then 2-opt and Or-opt on the symmetric move-time matrix; deterministic, and
+    never worse than the given order.
+    """
+    by_name = _axis_map(axes)
+    x, s, names = _moving_matrix(joints, by_name, start)
+    speed, accel = _limits(by_name, names)
+    return [int(i) for i in order_path(x, s, speed, accel, coordinated)]
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Plans
+
+
+def _solve(geometry: RigGeometry, rows: FloatArray, start: Joints, branch: Branch, isotropic: bool) -> Solution:
+    """The kinematics of every row; isotropic rows turned about the normal to keep roll (or the plane) fixed."""
+    sol = solve_degrees(geometry, rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], branch=branch, near=start)
+    if not isotropic:
+        return sol
+    if geometry.layout == "in_plane":
+        # Turn the light's azimuth (the camera's at normal incidence) into the arm plane.
+        psi = geometry.plane_azimuth_deg - np.where(rows[:, 0] == 0.0, rows[:, 3], rows[:, 1])
+    else:
+        # Turning both directions by psi about the normal turns the roll joint by -psi.
+        psi = np.asarray(sol.joints.roll, dtype=np.float64) - float(np.asarray(start.roll))
+    psi = np.where(np.isfinite(psi), psi, 0.0)
+    t = rows + np.stack([0.0 * psi, psi, 0.0 * psi, psi], axis=-1)
+    return solve_degrees(geometry, t[:, 0], t[:, 1], t[:, 2], t[:, 3], branch=branch, near=start)
+
+
+def _axis_check(
+    geometry: RigGeometry, name: str, values: FloatArray, start_deg: float, axis: Axis | None
+) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """Joint angles moved to a whole-turn equivalent inside the axis's and the geometry's limits; and the fit mask."""
+    if axis is None:
+        return values, np.abs(values - start_deg) <= FIXED_JOINT_TOL_DEG
+    g_lo, g_hi = geometry.limits.of(name)
+    lo, hi = max(axis.min_deg, g_lo), min(axis.max_deg, g_hi)
+    cand = values[:, None] + 360.0 * np.array([0.0, -1.0, 1.0, -2.0, 2.0])
+    inside = (cand >= lo) & (cand <= hi)
+    score = np.where(inside, np.abs(cand - start_deg), np.inf)
+    best = cand[np.arange(len(values)), np.argmin(score, axis=1)]
+    ok: npt.NDArray[np.bool_] = np.asarray(inside.any(axis=1))
+    return np.where(ok, best, values), ok
+
+
+def _axis_detail(name: str, value: float, start_deg: float, axis: Axis | None) -> str:
+    if axis is None:
+        return (
+            f"joint {name!r} has no axis (fixed at {start_deg:g} deg), but this point needs {value:.6g} deg; "
+            f"plan with isotropic=True for an isotropic sample"
+        )
+    try:
+        axis.check(value)
+    except AxisLimitError as exc:
+        return f"{exc} (Axis.min_deg/max_deg)"
+    return f"axis {name!r}: {value:.6g} deg fits the axis but not the geometry's limits.{name}"
+
+
+def _reference_positions(n: int, every: int) -> tuple[int, ...]:
+    if n == 0:
+        return ()
+    if every == 0:
+        return (0, n)
+    return tuple(sorted({0, *range(every, n, every), n}))
+
+
+def plan_sweep(
+    directions_deg: FloatArray,
+    geometry: RigGeometry,
+    axes: Sequence[Axis],
+    *,
+    start: Joints | None = None,
+    settle_s: float = 0.0,
+    exposure_s_per_point: float = 0.0,
+    overhead_s_per_point: float = 0.0,
+    reference_every: int = 0,
+    reference_s: float = 0.0,
+    reference_joints: Joints | None = None,
+    order: bool = True,
+    coordinated: bool = False,
+    isotropic: bool = False,
+    branch: Branch = "camera_cw",
+) -> Plan:
+    """Plan rows (N, 4) of BRDF angles in degrees on a rig: reachability, order, and time estimate in seconds.
+
+    ``start`` defaults to every joint at 0 deg; a joint with no axis in ``axes`` stays at its start angle.
+    References: one before the first point, one after every ``reference_every`` points (0: none in
+    between) and one after the last, each costing ``reference_s`` plus, if ``reference_joints`` is given,
+    the detour there and back and ``settle_s``. ``coordinated`` estimates GRBL-style straight moves.
+    ``isotropic`` turns each pair about the normal so the roll joint stays at ``start``'s (in-plane rig:
+    into the arm plane), so a rig without a roll axis measures it; skipped details then describe the
+    turned pair. ``branch`` picks the four-axis solution (see ``rig.instrument.kinematics``).
+    """
+    rows = np.asarray(directions_deg, dtype=np.float64)
+    if rows.ndim != 2 or rows.shape[1] != 4:
+        raise ValueError(f"directions_deg must have shape (N, 4) (theta_i, phi_i, theta_o, phi_o), got {rows.shape}")
+    for key, value in (("settle_s", settle_s), ("exposure_s_per_point", exposure_s_per_point),
+                       ("overhead_s_per_point", overhead_s_per_point), ("reference_s", reference_s)):  # fmt: skip
+        if not (np.isfinite(value) and value >= 0):
+            raise ValueError(f"{key} = {value!r}, expected a finite number of seconds >= 0")
+    if isinstance(reference_every, bool) or not (
+        isinstance(reference_every, int | np.integer) and reference_every >= 0
+    ):
+        raise ValueError(f"reference_every = {reference_every!r}, expected a whole number of points >= 0")
+    names = geometry.joint_names
+    by_name = _axis_map(axes)
+    stray = sorted(set(by_name) - set(names))
+    if stray:
+        raise ValueError(f"axes {stray} are not joints of a {geometry.layout} rig ({', '.join(names)})")
+    start = start if start is not None else Joints.from_dict(dict.fromkeys(names, 0.0))
+    for what, j in (("start", start), ("reference_joints", reference_joints)):
+        if j is not None and set(j.as_dict()) != set(names):
+            raise ValueError(f"{what} has joints {sorted(j.as_dict())}, a {geometry.layout} rig has {list(names)}")
+    if reference_joints is not None:
+        for name, angle in reference_joints.as_dict().items():
+            if name in by_name:
+                by_name[name].check(float(np.asarray(angle)))
+
+    sol = _solve(geometry, rows, start, branch, isotropic)
+    reason = np.asarray(sol.reason).reshape(len(rows)).copy()
+    detail: dict[int, str] = {}
+    placed: dict[str, FloatArray] = {}
+    for name in names:
+        values = np.asarray(getattr(sol.joints, name), dtype=np.float64).reshape(len(rows))
+        s0 = float(np.asarray(getattr(start, name)))
+        placed[name], fits = _axis_check(geometry, name, values, s0, by_name.get(name))
+        for i in np.flatnonzero((reason == "") & ~fits):
+            reason[i] = Reason.JOINT_LIMIT.value
+            detail[int(i)] = _axis_detail(name, float(values[i]), s0, by_name.get(name))
+
+    def row(i: int) -> Directions:
+        r = rows[i]
+        return float(r[0]), float(r[1]), float(r[2]), float(r[3])
+
+    skipped = []
+    for i in np.flatnonzero(reason != ""):
+        text = detail.get(int(i))
+        if text is None:
+            unreachable = sol.at(int(i))
+            text = getattr(unreachable, "message", str(reason[i]))
+        skipped.append(SkippedPoint(int(i), row(int(i)), str(reason[i]), text))
+    good = np.flatnonzero(reason == "")
+    joints = [Joints.from_dict({n: float(placed[n][i]) for n in names}) for i in good]
+    perm = order_points(joints, axes, start, coordinated=coordinated) if order else list(range(len(joints)))
+    points = tuple(PlannedPoint(int(good[k]), row(int(good[k])), joints[k]) for k in perm)
+
+    x, s, moving = _moving_matrix([p.joints for p in points], by_name, start)
+    speed, accel = _limits(by_name, moving)
+    path = np.vstack([s[None, :], x])
+    steps = step_times(path[:-1], path[1:], speed, accel, coordinated)
+    refs = _reference_positions(len(points), int(reference_every))
+    ref_total = len(refs) * reference_s
+    if reference_joints is not None and refs:
+        r, _, _ = _moving_matrix([reference_joints], by_name, start)
+        to_ref = pairwise_times(path, r, speed, accel, coordinated)[:, 0]  # from node k (0 = start) to R
+        for k in refs:
+            back = to_ref[k + 1] - steps[k] if k < len(points) else 0.0
+            ref_total += to_ref[k] + back + settle_s
+    n = len(points)
+    unordered = None
+    if order:
+        xg, sg, _ = _moving_matrix(joints, by_name, start)
+        generated = np.vstack([sg[None, :], xg])
+        unordered = float(step_times(generated[:-1], generated[1:], speed, accel, coordinated).sum())
+    estimate = TimeEstimate(
+        motion_s=float(sum(steps)),
+        settle_s=n * settle_s,
+        exposure_s=n * exposure_s_per_point,
+        reference_s=float(ref_total),
+        overhead_s=n * overhead_s_per_point,
+        reference_captures=len(refs),
+    )
+    return Plan(points, tuple(skipped), estimate, start, refs, reference_joints, unordered)

@@ -1,0 +1,297 @@
+"""The runner: measure every planned point, journal it before the next move, and always leave the rig safe.
+
+For each point: one synchronous move of all axes, a poll until in position (tolerance, timeout; never a
+fixed sleep), the joint angles read back and turned into the directions actually measured, a reading
+(``rig.run.measure``), and a journal record (fsynced) before the next move. Reference readings are taken
+before the first point, every ``reference.every`` points and after the last, with a drift check. Points
+already in the journal are skipped, so the same call resumes a killed run.
+
+Faults: a move that times out is re-issued once; a capture that fails is retried once; anything else
+from the link (a servo fault, a dead bus) or a second failure stops the run. Ctrl-C stops it too. In every
+case the axes are stopped and the link shut down by the torque policy (``torque_off`` or ``hold``), the
+journal keeps everything measured, and the run's status says why it stopped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+from tqdm import tqdm
+
+from acquisition.frame import Camera
+from rig.instrument.clock import Clock
+from rig.instrument.geometry import RigGeometry
+from rig.instrument.kinematics import Joints, forward
+from rig.instrument.links.base import LinkError, MotionLink, MoveTimeout
+from rig.run.measure import CaptureSettings, Level, Reading, take_reading
+from rig.run.plan import Plan, PlannedPoint
+from rig.run.reference import ReferenceTarget
+from rig.run.store import RunStore
+from rig.run.table import build_rows
+
+TorquePolicy = Literal["torque_off", "hold"]
+
+
+class RunStopped(RuntimeError):
+    """The run stopped before its end; the journal holds every point measured. ``cause`` says why."""
+
+    def __init__(self, message: str, cause: Literal["interrupted", "hardware", "camera"]) -> None:
+        super().__init__(message)
+        self.cause = cause
+
+
+class DriftWarning(UserWarning):
+    """The reference reading changed by more than its noise allows between two reference captures."""
+
+
+@dataclass(frozen=True)
+class ReferenceSettings:
+    """The reference target: albedo (one or per channel), its error, where and how often it is read."""
+
+    albedo: float | tuple[float, ...]
+    albedo_std_error: float
+    theta_i_deg: float
+    theta_o_deg: float
+    joints: Joints
+    every: int = 50
+    drift_sigma: float = 4.0
+    #: SNR goal of reference readings (None: the points'). Every point between two references shares
+    #: their error, so a higher goal pays for itself after a few points.
+    target_snr: float | None = None
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """Motion timeouts and settling (s), torque policy on stop, images kept, progress bar shown."""
+
+    move_timeout_s: float = 60.0
+    settle_s: float = 0.0
+    on_stop: TorquePolicy = "torque_off"
+    save_images: bool = False
+    include_cosine: bool = False
+    progress: bool = True
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """What a run did: points measured now and before, references, warnings, and the table's path."""
+
+    measured: int
+    already: int
+    references: int
+    drift_warnings: int
+    table: str
+    #: Rig time this call spent, by the instruments' clock (s): simulated time on the simulated rig.
+    rig_time_s: float = 0.0
+
+
+def _f(x: float) -> float:
+    return float(np.round(float(x), 9)) + 0.0
+
+
+class Runner:
+    """Runs one plan into one run store with one link and one camera; see the module docstring."""
+
+    def __init__(
+        self,
+        plan: Plan,
+        store: RunStore,
+        link: MotionLink,
+        camera: Camera,
+        clock: Clock,
+        geometry: RigGeometry,
+        capture: CaptureSettings,
+        *,
+        reference: ReferenceSettings | None = None,
+        target: ReferenceTarget | None = None,
+        options: RunOptions | None = None,
+    ) -> None:
+        if reference is not None and target is None:
+            raise ValueError("a reference schedule needs a ReferenceTarget to put the tile in view")
+        self.plan, self.store, self.link, self.camera, self.clock = plan, store, link, camera, clock
+        self.geometry, self.capture, self.reference, self.target = geometry, capture, reference, target
+        self.options = options or RunOptions()
+        self._measured = self._references = self._drift = 0
+
+    # -- the loop -------------------------------------------------------------------------------------
+    def run(self) -> RunSummary:
+        """Measure every point not yet in the journal, then write the table; stops safely on any fault."""
+        started = self.clock.now()
+        records = self.store.records()
+        done = {r["index"] for r in records if r["kind"] == "point"}
+        ref_done = {r["slot"]: r for r in records if r["kind"] == "reference"}
+        points = [r for r in records if r["kind"] == "point"]
+        level = Level.from_dict(max(points, key=lambda r: r["position"])["level"]) if points else None
+        # The plan holds the reference schedule, so its time estimate and the run agree on it.
+        slots = set(self.plan.reference_before) if self.reference else set()
+        last_ref = max(ref_done.values(), key=lambda r: r["slot"]) if ref_done else None
+        bar = tqdm(total=len(self.plan.points), initial=len(done), unit="pt", disable=not self.options.progress,
+                   file=sys.stderr, dynamic_ncols=True)  # fmt: skip
+        try:
+            for pos, point in enumerate(self.plan.points):
+                if pos in slots and pos not in ref_done and point.index not in done:
+                    last_ref = self._reference(pos, last_ref)
+                if point.index in done:
+                    continue
+                reading = self._point(pos, point, level)
+                level = reading.level
+                bar.update(1)
+                bar.set_postfix_str(self._postfix(point, reading), refresh=False)
+            end = len(self.plan.points)
+            if end in slots and end not in ref_done:
+                self._reference(end, last_ref)
+            table = self._finish()
+        except KeyboardInterrupt:
+            self._stop("interrupted by the operator (Ctrl-C or SIGTERM)")
+            raise RunStopped(
+                f"{self.store.path}: interrupted; `gonio resume {self.store.path}` continues", "interrupted"
+            ) from None
+        except LinkError as exc:
+            self._stop(f"link fault: {exc}")
+            raise RunStopped(f"{self.store.path}: stopped on a link fault: {exc}", "hardware") from exc
+        except _CameraFailed as exc:
+            self._stop(f"camera fault: {exc}")
+            raise RunStopped(f"{self.store.path}: stopped on a camera fault: {exc}", "camera") from exc
+        except BaseException as exc:
+            self._stop(f"error: {type(exc).__name__}: {exc}")
+            raise
+        finally:
+            bar.close()
+            self._shutdown()
+        return RunSummary(self._measured, len(done), self._references, self._drift, str(table),
+                          self.clock.now() - started)  # fmt: skip
+
+    def _postfix(self, point: PlannedPoint, reading: Reading) -> str:
+        ti, _, to, _ = point.directions_deg
+        return f"θi {ti:.0f}° θo {to:.0f}° reading {float(np.mean(reading.roi.mean)):.4g} DN/s"
+
+    # -- motion ---------------------------------------------------------------------------------------
+    def _move(self, joints: Joints) -> Joints:
+        target = {k: float(v) for k, v in joints.as_dict().items()}
+        for attempt in (1, 2):
+            self.link.move_to(target)
+            try:
+                held = self.link.wait_in_position(timeout_s=self.options.move_timeout_s)
+                break
+            except MoveTimeout as exc:
+                self._event("move_timeout", str(exc), attempt=attempt)
+                if attempt == 2:
+                    raise
+        if self.options.settle_s > 0:
+            self.clock.sleep(self.options.settle_s)
+        names = set(Joints.__dataclass_fields__)
+        return Joints.from_dict({k: v for k, v in held.items() if k in names})
+
+    def _read(self, previous: Level | None, capture: CaptureSettings | None = None) -> Reading:
+        for attempt in (1, 2):
+            try:
+                return take_reading(self.camera, capture or self.capture, previous)
+            except (OSError, RuntimeError, ValueError) as exc:
+                self._event("camera_error", f"{type(exc).__name__}: {exc}", attempt=attempt)
+                if attempt == 2:
+                    raise _CameraFailed(f"{type(exc).__name__}: {exc}") from exc
+        raise AssertionError("unreachable")
+
+    # -- one point, one reference ---------------------------------------------------------------------
+    def _point(self, pos: int, point: PlannedPoint, level: Level | None) -> Reading:
+        actual = self._move(point.joints)
+        d = forward(self.geometry, actual)
+        reading = self._read(level)
+        image = None
+        if self.options.save_images:
+            image = str(self.store.save_image(f"point_{point.index:05d}", reading.hdr.radiance,
+                                              variance=reading.hdr.variance).name)  # fmt: skip
+        self.store.append({
+            "kind": "point", "index": point.index, "position": pos,
+            "target_deg": [_f(v) for v in point.directions_deg],
+            "theta_i_deg": _f(float(d.theta_i)), "phi_i_deg": _f(float(d.phi_i)),
+            "theta_o_deg": _f(float(d.theta_o)), "phi_o_deg": _f(float(d.phi_o)),
+            "joints_deg": {k: _f(float(v)) for k, v in actual.as_dict().items()},
+            **self._reading_fields(reading), "image": image, "rig_time_s": self.clock.now(),
+        })  # fmt: skip
+        self._measured += 1
+        return reading
+
+    def _reading_fields(self, reading: Reading) -> dict[str, Any]:
+        r = reading.roi
+        return {
+            "reading": np.atleast_1d(r.mean).tolist(), "reading_std_error": np.atleast_1d(r.std_error).tolist(),
+            "n_pixels": r.n_pixels, "n_flagged": np.atleast_1d(r.n_flagged).tolist(), "lower_bound": r.lower_bound,
+            "exposures_s": list(reading.exposures_s), "dark_exposures_s": list(reading.dark_exposures_s),
+            "test_exposures_s": list(reading.test_exposures_s), "level": reading.level.as_dict(),
+            "notes": list(reading.notes),
+        }  # fmt: skip
+
+    def _reference(self, slot: int, last: Mapping[str, Any] | None) -> dict[str, Any]:
+        assert self.reference is not None and self.target is not None
+        ref = self.reference
+        self._move(ref.joints)
+        self.target.present(slot)
+        try:
+            previous = Level.from_dict(last["level"]) if last is not None else None
+            snr = ref.target_snr or self.capture.target_snr
+            reading = self._read(previous, dataclasses.replace(self.capture, target_snr=snr))
+        finally:
+            self.target.withdraw()
+        record: dict[str, Any] = {
+            "kind": "reference", "slot": slot, "theta_i_deg": ref.theta_i_deg, "theta_o_deg": ref.theta_o_deg,
+            "target": self.target.description, **self._reading_fields(reading), "rig_time_s": self.clock.now(),
+        }  # fmt: skip
+        if reading.roi.lower_bound:
+            raise _CameraFailed("the reference reading saturated in every frame; lower the light or the exposure")
+        if last is not None:
+            a, b = np.asarray(last["reading"]), np.asarray(record["reading"])
+            se = np.hypot(np.asarray(last["reading_std_error"]), np.asarray(record["reading_std_error"]))
+            z = float(np.max(np.abs(b - a) / np.where(se > 0, se, math.inf)))
+            record["drift_z"] = z
+            if z > ref.drift_sigma:
+                self._drift += 1
+                message = (f"reference drifted by {float(np.max(np.abs(b / a - 1))):.2%} ({z:.1f} sigma > "
+                           f"{ref.drift_sigma:g}) between positions {last['slot']} and {slot}: the lamp or the "
+                           "camera is not stable; the table interpolates between references")  # fmt: skip
+                warnings.warn(message, DriftWarning, stacklevel=2)
+                self._event("drift", message, z=z)
+        self.store.append(record)
+        self._references += 1
+        return record
+
+    # -- endings --------------------------------------------------------------------------------------
+    def _event(self, what: str, message: str, **extra: Any) -> None:
+        self.store.append({"kind": "event", "event": what, "message": message, **extra})
+
+    def _finish(self) -> str:
+        ref = self.reference
+        rows = build_rows(self.store.records(), self.geometry.joint_names,
+                          albedo=ref.albedo if ref else None, albedo_std_error=ref.albedo_std_error if ref else 0.0,
+                          include_cosine=self.options.include_cosine)  # fmt: skip
+        path = self.store.write_table(rows)
+        self.store.mark_finished({"points": len(rows), "skipped": len(self.plan.skipped)})
+        return str(path)
+
+    def _stop(self, reason: str) -> None:
+        """Halt motion first (the part that keeps the rig safe), then write down why."""
+        try:
+            self.link.stop()
+        except Exception as exc:  # a dead bus must not keep the rest of the shutdown from running
+            reason += f"; stopping the axes failed: {exc}"
+        try:
+            self.store.mark_stopped(reason)
+        except Exception as exc:
+            print(f"gonio: could not record the stop in {self.store.path}: {exc}", file=sys.stderr)
+
+    def _shutdown(self) -> None:
+        try:
+            self.link.shutdown(keep_torque=self.options.on_stop == "hold")
+        except LinkError as exc:
+            print(f"gonio: warning: {exc}", file=sys.stderr)
+
+
+class _CameraFailed(RuntimeError):
+    """A capture failed twice at one point (or the reference cannot be read)."""

@@ -1,0 +1,142 @@
+"""From a rig file and a sweep file to a finished run: the plan, the instruments, the store, the runner.
+
+``make_plan`` is what ``gonio plan`` prints. ``start_run`` creates a run directory (manifest with both files'
+validated tables) and runs it; ``resume_run`` reopens one, rebuilds the same plan from its manifest and
+runs the points its journal lacks. Instruments come from the backend the rig file's ``[link] kind`` names,
+found by registration (:mod:`rig.run.backends`): gonio's Dynamixel and GRBL links with a real camera
+(:mod:`rig.run.hardware`), the simulated rig (registered by the simulator, which nothing in rig imports),
+or a lab's own.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from pathlib import Path
+from typing import Any
+
+from acquisition.exposure.spec import CameraTiming
+from acquisition.noise import SensorNoise
+from rig.instrument.kinematics import inverse, require
+from rig.run.backends import Instruments, backend
+from rig.run.config import RigConfig, SweepConfig, parse, rig_config, sweep_config
+from rig.run.config_schema import RigFile, SweepFile
+from rig.run.measure import CaptureSettings
+from rig.run.plan import Plan, plan_sweep
+from rig.run.runner import ReferenceSettings, Runner, RunOptions, RunSummary
+from rig.run.store import RunStore
+
+
+def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
+    """The capture settings of a run from the rig's camera and the sweep's [capture] table."""
+    cam, cap = rig.file.camera, sweep.file.capture
+    return CaptureSettings(
+        noise=SensorNoise(**cam.noise.model_dump()),
+        timing=CameraTiming(cam.min_exposure_s, cam.max_exposure_s, overhead_s=cam.overhead_s),
+        target_snr=cap.target_snr,
+        exposures_s=tuple(cap.exposures_s) if cap.exposures_s else None,
+        max_frames=cap.max_frames,
+        dark_frames=cap.dark_frames,
+        first_exposure_s=cap.first_exposure_s,
+        # The simulated camera renders only the ROI, so what it delivers is the ROI already.
+        roi=cam.roi if cam.backend != "simulated" else None,
+    )
+
+
+def reference_settings(rig: RigConfig) -> ReferenceSettings | None:
+    """The reference schedule from the rig's [reference] table, None for kind 'none'."""
+    ref = rig.file.reference
+    if ref.kind == "none":
+        return None
+    joints = require(inverse(rig.geometry, ref.theta_i_deg, 0.0, ref.theta_o_deg, 180.0))
+    return ReferenceSettings(ref.albedo, ref.albedo_std_error, ref.theta_i_deg, ref.theta_o_deg, joints,
+                             every=ref.every, drift_sigma=ref.drift_sigma, target_snr=ref.target_snr)  # fmt: skip
+
+
+def _per_point_exposure_s(rig: RigConfig, sweep: SweepConfig) -> float:
+    cap = sweep.file.capture
+    frames = tuple(cap.exposures_s) if cap.exposures_s else (cap.first_exposure_s,) * min(3, cap.max_frames)
+    darks = len(set(frames)) * cap.dark_frames * max(frames)
+    overhead = (len(frames) + cap.dark_frames) * rig.file.camera.overhead_s
+    return float(sum(frames) + darks + overhead)
+
+
+def make_plan(rig: RigConfig, sweep: SweepConfig) -> Plan:
+    """The ordered plan with unreachable points listed and a time estimate (nothing moves)."""
+    ref = reference_settings(rig)
+    per_point = _per_point_exposure_s(rig, sweep)
+    return plan_sweep(
+        sweep.directions_deg, rig.geometry, rig.axes, settle_s=rig.file.link.settle_s,
+        exposure_s_per_point=per_point, reference_every=ref.every if ref else 0,
+        reference_s=per_point if ref else 0.0, reference_joints=ref.joints if ref else None,
+        order=sweep.file.sweep.order, isotropic=sweep.file.sweep.isotropic,
+        coordinated=backend(rig.file.link.kind).coordinated,
+    )  # fmt: skip
+
+
+def instruments(rig: RigConfig) -> contextlib.AbstractContextManager[Instruments]:
+    """Open the rig's link, camera and reference for the length of a run through its registered backend."""
+    return backend(rig.file.link.kind).open(rig)
+
+
+def manifest(rig: RigConfig, sweep: SweepConfig, plan: Plan, run_options: RunOptions) -> dict[str, Any]:
+    """The run's manifest: both files' validated tables (so a resume needs neither file), plan and options."""
+    return {
+        "rig": rig.file.model_dump(mode="json", exclude_none=True), "rig_path": str(rig.path),
+        "sweep": sweep.file.model_dump(mode="json", exclude_none=True), "sweep_path": str(sweep.path),
+        "points": len(plan.points), "unreachable": [
+            {"index": s.index, "directions_deg": list(s.directions_deg), "reason": s.reason, "detail": s.detail}
+            for s in plan.skipped
+        ],
+        "estimate_s": plan.estimate.total_s if math.isfinite(plan.estimate.total_s) else None,
+        "options": {"move_timeout_s": run_options.move_timeout_s, "on_stop": run_options.on_stop,
+                    "save_images": run_options.save_images, "include_cosine": run_options.include_cosine},
+    }  # fmt: skip
+
+
+def options_for(rig: RigConfig, sweep: SweepConfig, progress: bool) -> RunOptions:
+    """Run options from the rig's [link] and the sweep's [capture] tables."""
+    link, cap = rig.file.link, sweep.file.capture
+    return RunOptions(move_timeout_s=link.move_timeout_s, settle_s=link.settle_s, on_stop=link.on_stop,
+                      save_images=cap.save_images, include_cosine=cap.include_cosine, progress=progress)  # fmt: skip
+
+
+def _run(store: RunStore, rig: RigConfig, sweep: SweepConfig, plan: Plan, progress: bool) -> RunSummary:
+    with instruments(rig) as inst:
+        runner = Runner(
+            plan, store, inst.link, inst.camera, inst.clock, rig.geometry, capture_settings(rig, sweep),
+            reference=reference_settings(rig) if inst.target is not None else None, target=inst.target,
+            options=options_for(rig, sweep, progress),
+        )  # fmt: skip
+        return runner.run()
+
+
+def start_run(rig: RigConfig, sweep: SweepConfig, out: str | Path, *, progress: bool = True) -> RunSummary:
+    """Plan, create the run directory ``out`` and measure; raises RunStopped if it stops early."""
+    plan = make_plan(rig, sweep)
+    if not plan.points:
+        raise ValueError(f"{sweep.path}: no reachable point on this rig ({len(plan.skipped)} unreachable)")
+    with RunStore.create(out, manifest(rig, sweep, plan, options_for(rig, sweep, progress))) as store:
+        return _run(store, rig, sweep, plan, progress)
+
+
+def configs_of(store: RunStore) -> tuple[RigConfig, SweepConfig]:
+    """The rig and sweep a run was started with, rebuilt from its manifest."""
+    m = store.manifest
+    rig = rig_config(parse(m["rig"], RigFile, f"{store.path}/manifest.json rig"), m["rig_path"])
+    sweep = sweep_config(parse(m["sweep"], SweepFile, f"{store.path}/manifest.json sweep"), m["sweep_path"])
+    return rig, sweep
+
+
+def resume_run(path: str | Path, *, progress: bool = True) -> RunSummary:
+    """Continue a stopped or killed run from its journal; ends with the table an uninterrupted run writes."""
+    with RunStore.open(path) as store:
+        previous = getattr(store, "previous_status", None) or store.status()
+        if previous.get("state") == "finished":
+            raise ValueError(f"{path}: the run is finished ({store.path / 'samples.csv'}); nothing to resume")
+        rig, sweep = configs_of(store)
+        plan = make_plan(rig, sweep)
+        if len(plan.points) != store.manifest["points"]:
+            raise ValueError(f"{path}: the plan rebuilt from the manifest has {len(plan.points)} points, "
+                             f"the run had {store.manifest['points']}: was gonio upgraded in between?")  # fmt: skip
+        return _run(store, rig, sweep, plan, progress)

@@ -1,0 +1,238 @@
+"""The simulated camera: a radiance image of the current pose in, frames of a bracket out, like a real camera.
+
+``SimulatedCamera`` satisfies ``acquisition.frame.Camera``, so the runner cannot tell it from a real one.
+It asks a *radiance source* for the scene's radiance in W/(m^2 sr) at the moment of capture (the
+simulated rig renders it with Mitsuba from the pose the virtual servos actually hold, cached per pose),
+turns it into counts per second through the optics (``CameraOptics``), and lets the sensor model draw
+each exposure: shot noise, dark current, read noise, full well, black and white levels, a fixed-pattern
+offset, quantisation and the optional 8-bit response curve. Exposures take simulated time on the
+camera's clock, so a run on a ``ManualClock`` costs no real waiting.
+
+With ``dng_dir`` set, RAW frames are written as DNG files and read back through ``acquisition.files.raw``, the
+path a real camera's files take.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import threading
+from collections.abc import Callable, Hashable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from acquisition.files.dng import write_dng
+from acquisition.files.raw import read_raw
+from acquisition.frame import ExposureSettings, Frame, FrameKind
+from acquisition.noise import SensorNoise
+from rig.instrument.clock import Clock, ManualClock
+from simulator.camera.sensor import ToneCurve, as_generator, capture, dark_frame, srgb_curve
+
+PLANCK_J_S = 6.62607015e-34
+LIGHT_M_S = 299_792_458.0
+
+RadianceSource = Callable[[], npt.NDArray[np.float64]]
+"""Returns the radiance (W/(m^2 sr)) the camera sees now, (H, W, 3)."""
+
+
+@dataclass(frozen=True)
+class CameraOptics:
+    """What turns scene radiance into photo-electrons: lens, pixel and quantum efficiency.
+
+    Parameters
+    ----------
+    quantum_efficiency:
+        Photo-electrons per photon at ``wavelength_m`` (0..1).
+    pixel_pitch_m:
+        Pixel side in metres (square pixels).
+    f_number:
+        Working f-number of the lens; the image irradiance is L * pi / (4 N^2) * transmission.
+    transmission:
+        Lens and filter transmission (0..1).
+    wavelength_m:
+        Wavelength used to count photons per joule (one effective wavelength for all channels).
+    """
+
+    quantum_efficiency: float = 0.6
+    pixel_pitch_m: float = 5.0e-6
+    f_number: float = 8.0
+    transmission: float = 0.9
+    wavelength_m: float = 550e-9
+
+    def __post_init__(self) -> None:
+        for key, lo, hi in (("quantum_efficiency", 0.0, 1.0), ("transmission", 0.0, 1.0)):
+            value = getattr(self, key)
+            if not lo < value <= hi:
+                raise ValueError(f"CameraOptics.{key} = {value!r}: expected a number in ({lo:g}, {hi:g}]")
+        for key in ("pixel_pitch_m", "f_number", "wavelength_m"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"CameraOptics.{key} = {value!r}: expected a positive finite number")
+
+    def electrons_per_radiance(self) -> float:
+        """Photo-electrons per second per pixel for a radiance of 1 W/(m^2 sr)."""
+        irradiance = math.pi / (4.0 * self.f_number**2) * self.transmission  # W/m^2 per W/(m^2 sr)
+        photons_per_joule = self.wavelength_m / (PLANCK_J_S * LIGHT_M_S)
+        return irradiance * self.pixel_pitch_m**2 * photons_per_joule * self.quantum_efficiency
+
+    def counts_per_radiance(self, noise: SensorNoise) -> float:
+        """Counts per second at gain 1 for a radiance of 1 W/(m^2 sr)."""
+        return self.electrons_per_radiance() / noise.e_per_dn
+
+
+class SimulatedCamera:
+    """A camera whose frames come from a radiance source and the sensor model; see the module docstring.
+
+    ``fixed_pattern_dn`` is the RMS of a per-pixel offset drawn once from ``seed`` (dark signal
+    non-uniformity); dark frames carry it, so subtracting them removes it. ``min_exposure_s`` and
+    ``max_exposure_s`` bound what ``set_exposure`` applies, like a real camera's shutter range.
+
+    ``state_key`` (optional) names the scene's state (the simulated rig gives the servos' physical
+    positions and the material in view). With it, each frame's noise is drawn from the seed, that state
+    and the frame's number since the state last changed, instead of from one stream for the camera's
+    life: a run resumed after a crash then sees exactly the noise an uninterrupted run saw.
+    """
+
+    def __init__(
+        self,
+        source: RadianceSource,
+        *,
+        noise: SensorNoise | None = None,
+        optics: CameraOptics | None = None,
+        kind: FrameKind = "linear",
+        cfa_pattern: str = "RGGB",
+        tone_curve: ToneCurve = srgb_curve,
+        fixed_pattern_dn: float = 0.0,
+        min_exposure_s: float = 1e-5,
+        max_exposure_s: float = 30.0,
+        clock: Clock | None = None,
+        seed: int = 0,
+        dng_dir: Path | None = None,
+        camera_id: str = "gonio simulated camera",
+        state_key: Callable[[], Hashable] | None = None,
+    ) -> None:
+        if not 0 < min_exposure_s < max_exposure_s:
+            raise ValueError(
+                f"exposure range [{min_exposure_s!r}, {max_exposure_s!r}] s: expected 0 < min < max"
+            )
+        if fixed_pattern_dn < 0:
+            raise ValueError(f"fixed_pattern_dn = {fixed_pattern_dn!r}: expected an RMS >= 0 counts")
+        if dng_dir is not None and kind != "raw":
+            raise ValueError(f"dng_dir needs kind='raw' (DNG holds a CFA mosaic), got kind={kind!r}")
+        self._source = source
+        self.noise = noise or SensorNoise()
+        self.optics = optics or CameraOptics()
+        self.kind: FrameKind = kind
+        self.cfa_pattern = cfa_pattern
+        self.tone_curve = tone_curve
+        self.fixed_pattern_dn = fixed_pattern_dn
+        self.min_exposure_s = min_exposure_s
+        self.max_exposure_s = max_exposure_s
+        self.clock: Clock = clock or ManualClock()
+        self.dng_dir = Path(dng_dir) if dng_dir is not None else None
+        if state_key is not None and not isinstance(seed, int):
+            raise ValueError(f"state_key needs an int seed (it derives one stream per state), got {seed!r}")
+        self._rng = as_generator(seed)
+        self._seed = seed
+        self._state_key = state_key
+        self._state: tuple[str, int] | None = None
+        self._fpn_seed = seed + 7919  # the offset map must not depend on how many frames came before
+        self._fpn: dict[tuple[int, ...], npt.NDArray[np.float32]] = {}
+        self._settings = ExposureSettings(exposure_s=min(max(0.01, min_exposure_s), max_exposure_s), gain=1.0)
+        self._camera_id = camera_id
+        self._lock = threading.Lock()
+        self._frames = 0
+        self.closed = False
+
+    @property
+    def identity(self) -> str:
+        """Make, model and serial of the simulated camera."""
+        return self._camera_id
+
+    def set_exposure(self, exposure_s: float, gain: float | None = None) -> ExposureSettings:
+        """Apply an exposure in seconds (clamped to the shutter range) and a gain; return what was applied."""
+        self._require_open()
+        if not (math.isfinite(exposure_s) and exposure_s > 0):
+            raise ValueError(f"{self.identity}: exposure_s = {exposure_s!r}, expected a positive number of seconds")
+        g = self._settings.gain if gain is None else float(gain)
+        if not (math.isfinite(g) and g > 0):
+            raise ValueError(f"{self.identity}: gain = {gain!r}, expected a positive number")
+        t = min(max(exposure_s, self.min_exposure_s), self.max_exposure_s)
+        self._settings = ExposureSettings(exposure_s=t, gain=g)
+        return self._settings
+
+    def rate_counts_per_s(self) -> npt.NDArray[np.float64]:
+        """The scene as the sensor sees it now: counts per second at gain 1, (H, W, 3)."""
+        radiance = np.asarray(self._source(), dtype=np.float64)
+        if radiance.ndim != 3 or radiance.shape[2] != 3:
+            raise ValueError(f"{self.identity}: radiance source gave shape {radiance.shape}, expected (H, W, 3)")
+        return radiance * self.optics.counts_per_radiance(self.noise)
+
+    def capture(self) -> Frame:
+        """One frame at the current settings; takes ``exposure_s`` of the camera's clock."""
+        self._require_open()
+        with self._lock:
+            rate = self.rate_counts_per_s()
+            return self._expose(rate, dark=False)
+
+    def capture_dark(self) -> Frame:
+        """One frame with the shutter closed at the current settings (black, dark current, offsets, noise)."""
+        self._require_open()
+        with self._lock:
+            shape = self.rate_counts_per_s().shape
+            return self._expose(np.zeros(shape), dark=True)
+
+    def _offsets(self, shape: tuple[int, ...]) -> npt.NDArray[np.float32] | None:
+        if self.fixed_pattern_dn == 0:
+            return None
+        if shape not in self._fpn:
+            gen = np.random.default_rng(self._fpn_seed)
+            self._fpn[shape] = (gen.standard_normal(shape) * self.fixed_pattern_dn).astype(np.float32)
+        return self._fpn[shape]
+
+    def _generator(self, dark: bool) -> np.random.Generator:
+        if self._state_key is None:
+            return self._rng
+        # Python's hash() is salted per process; a resumed run needs the same stream in a new process.
+        digest = hashlib.blake2b(repr((self._state_key(), dark)).encode(), digest_size=8).hexdigest()
+        n = self._state[1] + 1 if self._state is not None and self._state[0] == digest else 0
+        self._state = (digest, n)
+        return np.random.default_rng([self._seed, int(digest, 16), n])
+
+    def _expose(self, rate: npt.NDArray[np.float64], *, dark: bool) -> Frame:
+        t, g = self._settings.exposure_s, self._settings.gain
+        rng = self._generator(dark)
+        start = self.clock.now()
+        pattern = self.cfa_pattern if self.kind == "raw" else None
+        shape = rate.shape[:2] if self.kind == "raw" else rate.shape
+        offsets = self._offsets(tuple(shape))
+        if dark:
+            frame = dark_frame(tuple(shape), self.noise, t, rng, gain=g, kind=self.kind, cfa_pattern=pattern,
+                               camera_id=self.identity, timestamp_s=start, offset_dn=offsets)  # fmt: skip
+        else:
+            frame = capture(rate, self.noise, t, rng, gain=g, kind=self.kind, cfa_pattern=pattern,
+                            tone_curve=self.tone_curve, camera_id=self.identity, timestamp_s=start,
+                            offset_dn=offsets)  # fmt: skip
+        self.clock.sleep(t)
+        self._frames += 1
+        if self.dng_dir is not None:
+            frame = self._through_dng(frame, dark)
+        return frame
+
+    def _through_dng(self, frame: Frame, dark: bool) -> Frame:
+        assert self.dng_dir is not None
+        self.dng_dir.mkdir(parents=True, exist_ok=True)
+        path = self.dng_dir / f"{'dark' if dark else 'frame'}_{self._frames:06d}.dng"
+        write_dng(path, frame, exposure_s=frame.exposure_s, iso=100.0 * frame.gain, camera_id=self.identity)
+        return read_raw(path, expected_exposure_s=frame.exposure_s, timestamp_s=frame.timestamp_s)
+
+    def close(self) -> None:
+        """Release the camera; later captures raise."""
+        self.closed = True
+
+    def _require_open(self) -> None:
+        if self.closed:
+            raise RuntimeError(f"{self.identity} is closed")

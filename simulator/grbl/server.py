@@ -1,0 +1,191 @@
+"""A virtual GRBL 1.1 controller on a pseudo-terminal, for pyserial clients such as ``rig.instrument.links.grbl``.
+
+The controller itself (``VirtualGrbl``: G-code, ``$`` commands, real-time bytes, motion, alarms, fault injection)
+lives in ``simulator/grbl/controller.py`` and its core modules; this module puts it on a pty:
+
+- ``open_virtual_grbl(...)``: context manager that serves it from a daemon thread and yields a ``GrblPtyServer``
+  whose ``.port`` is the slave path to open with ``serial.Serial(port, 115200)`` and ``.controller`` the state;
+- ``serve_grbl(...)``: the same, blocking in the calling thread until a stop event or Ctrl-C (``gonio sim grbl``).
+
+Opening the port resets the controller and prints the banner, as an Arduino's auto-reset does: the server watches
+the pty master in packet mode, and the input flush pyserial performs on open is the "port opened" signal. So a
+client must not call ``reset_input_buffer()`` mid-session (it would reset the controller), and a client that opens
+the port without flushing gets no banner until it sends 0x18. Output is dropped while no client has the port open.
+
+Time comes from an injectable ``rig.instrument.clock.Clock``: share a ``ManualClock`` with the client in tests so
+polling advances the simulation, or use a ``ScaledClock`` to run faster than real time for an external program.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import logging
+import os
+import select
+import struct
+import termios
+import threading
+import tty
+from collections.abc import Callable, Iterator, Mapping
+
+from rig.instrument.clock import Clock
+from simulator.grbl.controller import VirtualGrbl
+
+log = logging.getLogger(__name__)
+
+__all__ = ["GrblPtyServer", "VirtualGrbl", "open_virtual_grbl", "serve_grbl"]
+
+_TIOCPKT_FLUSHREAD = 0x01
+_MAX_PENDING_OUTPUT = 1 << 16  # bytes kept for a client that stopped reading; older output is dropped
+
+
+class GrblPtyServer:
+    """Serves one ``VirtualGrbl`` on a new pseudo-terminal; ``port`` is the path clients open."""
+
+    def __init__(
+        self, controller: VirtualGrbl, tick_s: float = 0.01, stop_event: threading.Event | None = None
+    ) -> None:
+        self.controller = controller
+        self._tick_ms = max(int(tick_s * 1000), 1)
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        self.port = os.ttyname(slave)
+        # Packet mode reports the slave's input flushes, which is how a pyserial open shows up on the master.
+        fcntl.ioctl(master, termios.TIOCPKT, struct.pack("i", 1))
+        os.set_blocking(master, False)
+        # Closing our slave end lets the master see a hang-up whenever no client has the port open.
+        os.close(slave)
+        self._master = master
+        self._stop = stop_event if stop_event is not None else threading.Event()
+        self._thread: threading.Thread | None = None
+        self._out = bytearray()
+        self._hung_up = True
+        self.opens = 0  # how many times a client opened the port (each one resets the controller)
+        self.error: Exception | None = None  # what stopped the serving thread, if it crashed
+
+    def start(self) -> None:
+        """Serve from a daemon thread."""
+        if self._thread is None:
+            self._thread = threading.Thread(target=self.run, name=f"virtual-grbl {self.port}", daemon=True)
+            self._thread.start()
+
+    def stop(self) -> None:
+        """Stop serving (within one tick) and close the pty."""
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5.0)
+        if self._master >= 0:
+            os.close(self._master)
+            self._master = -1
+
+    def run(self) -> None:
+        """Serve until ``stop()``: feed client bytes to the controller, advance it, write its replies."""
+        poller = select.poll()
+        poller.register(self._master, select.POLLIN | select.POLLPRI)
+        try:
+            self._serve(poller)
+        except Exception as exc:
+            # A simulator bug must not look like a silent controller: record it and say so.
+            self.error = exc
+            log.exception("virtual GRBL on %s stopped", self.port)
+
+    def _serve(self, poller: select.poll) -> None:
+        while not self._stop.is_set():
+            mask = select.POLLIN | select.POLLPRI | (select.POLLOUT if self._out else 0)
+            poller.modify(self._master, mask)
+            events = poller.poll(self._tick_ms)
+            hung_up = any(ev & select.POLLHUP for _, ev in events)
+            if hung_up:
+                self._on_hangup()
+                self._stop.wait(self._tick_ms / 1000.0)  # POLLHUP stays set: do not spin
+                continue
+            if any(ev & (select.POLLIN | select.POLLPRI) for _, ev in events):
+                self._read()
+            self.controller.update()
+            self._queue_output(self.controller.read_output())
+            self._flush()
+
+    def _on_hangup(self) -> None:
+        self._hung_up = True
+        self._out.clear()
+        self.controller.read_output()  # nobody is listening: GRBL's replies go nowhere
+
+    def _read(self) -> None:
+        try:
+            packet = os.read(self._master, 4096)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            if exc.errno == errno.EIO:
+                self._on_hangup()
+                return
+            raise
+        if not packet:
+            return
+        if packet[0] == 0:
+            if len(packet) > 1:
+                self._hung_up = False  # someone is writing, so someone can read the replies
+                self.controller.receive(packet[1:])
+        elif packet[0] & _TIOCPKT_FLUSHREAD:
+            # Every input flush counts as an open: a quick close-and-reopen may never show a hang-up.
+            self._hung_up = False
+            self.opens += 1
+            self.controller.power_on()
+
+    def _queue_output(self, data: bytes) -> None:
+        if data and not self._hung_up:
+            self._out += data
+            if len(self._out) > _MAX_PENDING_OUTPUT:
+                del self._out[: len(self._out) - _MAX_PENDING_OUTPUT]
+
+    def _flush(self) -> None:
+        while self._out:
+            try:
+                n = os.write(self._master, self._out)
+            except BlockingIOError:
+                return
+            except OSError as exc:
+                if exc.errno == errno.EIO:
+                    self._on_hangup()
+                    return
+                raise
+            del self._out[:n]
+
+
+@contextlib.contextmanager
+def open_virtual_grbl(
+    clock: Clock | None = None,
+    axes: str = "XYZ",
+    settings: Mapping[int, float] | None = None,
+    start_position: Mapping[str, float] | None = None,
+) -> Iterator[GrblPtyServer]:
+    """Serve a virtual GRBL 1.1 on a pty for the ``with`` block; units per setting, start position in units."""
+    server = GrblPtyServer(VirtualGrbl(clock, axes=axes, settings=settings, start_position=start_position))
+    server.start()
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+def serve_grbl(
+    clock: Clock | None = None,
+    axes: str = "XYZ",
+    settings: Mapping[int, float] | None = None,
+    start_position: Mapping[str, float] | None = None,
+    stop: threading.Event | None = None,
+    on_ready: Callable[[str], None] | None = None,
+) -> None:
+    """Serve a virtual GRBL on a pty in this thread until ``stop`` is set or Ctrl-C; ``on_ready(port)`` first."""
+    controller = VirtualGrbl(clock, axes=axes, settings=settings, start_position=start_position)
+    server = GrblPtyServer(controller, stop_event=stop)
+    if on_ready is not None:
+        on_ready(server.port)
+    try:
+        server.run()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()

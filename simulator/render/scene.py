@@ -1,0 +1,126 @@
+"""The Mitsuba 3 scene of the rig at one pose: the sample, one light and the camera, nothing else.
+
+World frame and units are those of ``rig.instrument.kinematics`` (metres, sample centre at the origin, z up along
+the arm axis). What is modelled, and what is not ("model only what the scene requires"):
+
+- The sample is a ``rectangle`` of the rig's sample size. Its ``to_world`` maps local x to
+  ``pose.sample_tangent``, y to ``pose.sample_bitangent`` and z to ``pose.sample_normal``, centred at
+  ``pose.sample_centre_m``. Mitsuba builds the BSDF's shading frame from the same axes (s along local x),
+  so the BSDF local frame is the kinematics' local frame: phi angles and anisotropic materials agree.
+  The rectangle is one-sided for ordinary BSDFs: seen or lit from behind it renders black.
+- One light at ``pose.light_position_m``: an isotropic ``point`` emitter, or a ``spot`` aimed at the
+  sample centre. Both are delta lights.
+- A ``perspective`` camera at ``pose.camera_position_m`` looking at the sample centre (image up is the
+  world +z, the arm axis, unless the view is nearly vertical). The rig's ``camera_fov_deg`` is a cone;
+  by default it spans the image's smaller side (``fov_axis="smaller"``), so the circle of
+  ``RigGeometry.view_radius_m`` lies inside the image.
+- No environment light, no sample holder, no arms, no back side of the sample, no interreflection: a flat
+  sample under one light needs direct lighting only, so the integrator is ``direct``. Light from a delta
+  emitter can only be reached by emitter sampling (a BSDF-sampled ray never hits a point), so
+  ``bsdf_samples`` is 0 and one ``emitter_samples`` is exact; spp then only antialiases (sub-pixel
+  positions), which matters at the sample's edges and for textured materials. A smooth (delta) BSDF, such
+  as ``conductor``, renders black: a mirror shows a point light at a single point only.
+
+The specs (light, camera, pixel boxes) are in ``simulator.render.spec``; the numpy model of the camera
+and the ROI it picks in ``simulator.render.view``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import mitsuba.scalar_rgb as mis  # variant-free scalar types; the transforms load under any variant
+import numpy as np
+import numpy.typing as npt
+
+from rig.instrument.geometry import RigGeometry
+from rig.instrument.kinematics_types import RigPose
+from simulator.render.spec import Box, BSDFLike, CameraSpec, LightSpec, bsdf_dict, check_box
+from simulator.render.view import _unit, _up_for, _vec3, camera_view
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def _transform(matrix: FloatArray) -> Any:
+    return mis.ScalarTransform4f(np.asarray(matrix, dtype=np.float64))
+
+
+def _look_at(origin: FloatArray, forward: FloatArray, left: FloatArray, up: FloatArray) -> Any:
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = left, up, forward, origin
+    return _transform(m)
+
+
+def _emitter(geometry: RigGeometry, pose: RigPose, light: LightSpec) -> dict[str, Any]:
+    position = _vec3("light_position_m", pose.light_position_m)
+    intensity = {"type": "rgb", "value": list(light.rgb())}
+    if light.kind == "point":
+        return {"type": "point", "position": position.tolist(), "intensity": intensity}
+    forward = _unit(_vec3("sample_centre_m", pose.sample_centre_m) - position)
+    left = _unit(np.cross(_up_for(forward), forward))
+    beam, cutoff = light.cone_deg(geometry)
+    return {
+        "type": "spot",
+        "to_world": _look_at(position, forward, left, np.cross(forward, left)),
+        "intensity": intensity,
+        "cutoff_angle": cutoff,
+        "beam_width": beam,
+    }
+
+
+def sample_to_world(geometry: RigGeometry, pose: RigPose) -> FloatArray:
+    """4x4 matrix taking Mitsuba's [-1, 1]^2 rectangle to the sample: x -> tangent, y -> bitangent, z -> normal."""
+    m = np.eye(4)
+    m[:3, 0] = 0.5 * geometry.sample_width_m * _vec3("sample_tangent", pose.sample_tangent)
+    m[:3, 1] = 0.5 * geometry.sample_height_m * _vec3("sample_bitangent", pose.sample_bitangent)
+    m[:3, 2] = _vec3("sample_normal", pose.sample_normal)
+    m[:3, 3] = _vec3("sample_centre_m", pose.sample_centre_m)
+    return m
+
+
+def build_scene(
+    geometry: RigGeometry,
+    pose: RigPose,
+    bsdf: BSDFLike,
+    light: LightSpec,
+    camera: CameraSpec,
+    crop: Box | None = None,
+) -> dict[str, Any]:
+    """The Mitsuba scene dict of the rig at one pose (metres, W/sr); ``crop`` renders only that pixel box."""
+    view = camera_view(geometry, pose, camera)
+    distance = float(np.linalg.norm(view.origin - _vec3("sample_centre_m", pose.sample_centre_m)))
+    half_diagonal = 0.5 * math.hypot(geometry.sample_width_m, geometry.sample_height_m)
+    w, h = camera.resolution
+    film: dict[str, Any] = {
+        "type": "hdrfilm",
+        "width": w,
+        "height": h,
+        "pixel_format": "rgb",
+        "component_format": "float32",
+        "rfilter": {"type": "box"},  # each pixel averages its own footprint only, so crops match the full frame
+    }
+    if crop is not None:
+        x0, y0, x1, y1 = check_box(crop, camera.resolution, "crop")
+        film.update(crop_offset_x=x0, crop_offset_y=y0, crop_width=x1 - x0, crop_height=y1 - y0)
+    return {
+        "type": "scene",
+        "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0},
+        "sensor": {
+            "type": "perspective",
+            "fov": camera.fov(geometry),
+            "fov_axis": camera.fov_axis,
+            # Clip planes bracket the sample with margin whatever the arm radius.
+            "near_clip": 0.5 * (distance - half_diagonal),
+            "far_clip": 2.0 * (distance + half_diagonal),
+            "to_world": _look_at(view.origin, view.forward, view.left, view.up),
+            "film": film,
+            "sampler": {"type": camera.sampler, "sample_count": camera.spp, "seed": camera.seed},
+        },
+        "sample": {
+            "type": "rectangle",
+            "to_world": _transform(sample_to_world(geometry, pose)),
+            "bsdf": bsdf_dict(bsdf),
+        },
+        "light": _emitter(geometry, pose, light),
+    }

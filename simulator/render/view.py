@@ -1,0 +1,182 @@
+"""The camera of the rendered scene as a numpy pinhole model, and the region of interest it picks.
+
+``camera_view`` reproduces the ``perspective`` sensor that ``simulator.render.scene.build_scene`` places, so
+world points can be projected to pixels (and pixels cast back onto the sample) without Mitsuba; the
+default ROI is the largest centred box whose pixels all see the central part of the sample.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from rig.instrument.geometry import RigGeometry
+from rig.instrument.kinematics_types import RigPose
+from simulator.render.spec import Box, CameraSpec, LightSpec
+
+FloatArray = npt.NDArray[np.float64]
+
+#: Cosine of the angle between the view direction and world z above which world z cannot serve as up.
+_UP_DEGENERATE_COS = 0.999
+
+
+def _vec3(name: str, value: npt.ArrayLike) -> FloatArray:
+    a = np.asarray(value, dtype=np.float64)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"pose.{name} = {value!r}, expected one finite 3-vector (a single pose, not a batch)")
+    return a
+
+
+def _unit(v: FloatArray) -> FloatArray:
+    out: FloatArray = v / np.linalg.norm(v)
+    return out
+
+
+@dataclass(frozen=True)
+class CameraView:
+    """The pinhole camera Mitsuba's ``perspective`` sensor implements, in world metres and pixels.
+
+    ``left``/``up``/``forward`` are the columns of Mitsuba's ``look_at``; image x grows towards -left and
+    image y towards -up, and ``focal_px`` is the focal length in pixels (square pixels).
+    """
+
+    origin: FloatArray
+    forward: FloatArray
+    left: FloatArray
+    up: FloatArray
+    focal_px: float
+    width: int
+    height: int
+
+    def project(self, points_m: npt.ArrayLike) -> FloatArray:
+        """Continuous pixel coordinates (..., 2) of world points (..., 3) in metres (in front of the camera)."""
+        d = np.asarray(points_m, dtype=np.float64) - self.origin
+        z = d @ self.forward
+        x = 0.5 * self.width - self.focal_px * (d @ self.left) / z
+        y = 0.5 * self.height - self.focal_px * (d @ self.up) / z
+        return np.stack([x, y], axis=-1)
+
+    def ray(self, px: npt.ArrayLike, py: npt.ArrayLike) -> FloatArray:
+        """Unit world directions (..., 3) of the rays through continuous pixel coordinates."""
+        a = (0.5 * self.width - np.asarray(px, dtype=np.float64))[..., None]
+        b = (0.5 * self.height - np.asarray(py, dtype=np.float64))[..., None]
+        d = self.focal_px * self.forward + a * self.left + b * self.up
+        out: FloatArray = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        return out
+
+
+def _up_for(forward: FloatArray) -> FloatArray:
+    """World z, the arm axis, unless the view is nearly vertical; then world x (a top-down view)."""
+    z = np.array([0.0, 0.0, 1.0])
+    return z if abs(float(forward @ z)) < _UP_DEGENERATE_COS else np.array([1.0, 0.0, 0.0])
+
+
+def camera_view(geometry: RigGeometry, pose: RigPose, camera: CameraSpec) -> CameraView:
+    """The camera of ``build_scene`` as a numpy pinhole model: where world points land in the image."""
+    origin = _vec3("camera_position_m", pose.camera_position_m)
+    target = _vec3("sample_centre_m", pose.sample_centre_m)
+    forward = _unit(target - origin)
+    left = _unit(np.cross(_up_for(forward), forward))
+    up = np.cross(forward, left)
+    w, h = camera.resolution
+    size = {"x": w, "y": h, "smaller": min(w, h), "larger": max(w, h), "diagonal": math.hypot(w, h)}
+    focal = 0.5 * size[camera.fov_axis] / math.tan(math.radians(0.5 * camera.fov(geometry)))
+    return CameraView(origin, forward, left, up, focal, w, h)
+
+
+def pixel_on_sample(view: CameraView, pose: RigPose, px: npt.ArrayLike, py: npt.ArrayLike) -> tuple[FloatArray, ...]:
+    """Where pixel rays meet the sample plane: world points (..., 3) and local (u, v) in metres (..., 2).
+
+    u runs along the tangent and v along the bitangent; rays parallel to the plane or meeting it behind
+    the camera give NaN. Whether (u, v) lies on the sample is for the caller to test against its size.
+    """
+    centre = _vec3("sample_centre_m", pose.sample_centre_m)
+    n = _vec3("sample_normal", pose.sample_normal)
+    d = view.ray(px, py)
+    denom = d @ n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = ((centre - view.origin) @ n) / denom
+    t = np.where((np.abs(denom) > 1e-12) & (t > 0), t, np.nan)
+    p = view.origin + t[..., None] * d
+    q = p - centre
+    tangent = _vec3("sample_tangent", pose.sample_tangent)
+    bitangent = _vec3("sample_bitangent", pose.sample_bitangent)
+    uv = np.stack([q @ tangent, q @ bitangent], axis=-1)
+    return p, uv
+
+
+def _roi_mask(
+    geometry: RigGeometry, pose: RigPose, light: LightSpec, camera: CameraSpec
+) -> tuple[npt.NDArray[np.bool_], int, int]:
+    """Pixels whose centre sees the central ``roi_fraction`` of the sample (and of a spot); window origin.
+
+    Only the window around the region's projection is computed (it is convex, so its image lies within
+    the bounding box of its projected corners): a full 2048 x 1536 frame would cost about a second.
+    """
+    view = camera_view(geometry, pose, camera)
+    centre = _vec3("sample_centre_m", pose.sample_centre_m)
+    k = math.sqrt(camera.roi_fraction)  # area fraction -> linear fraction
+    half = (0.5 * k * geometry.sample_width_m, 0.5 * k * geometry.sample_height_m)
+    corners = [centre + su * half[0] * _vec3("sample_tangent", pose.sample_tangent)
+               + sv * half[1] * _vec3("sample_bitangent", pose.sample_bitangent)
+               for su in (-1.0, 1.0) for sv in (-1.0, 1.0)]
+    pix = view.project(np.array(corners))
+    x0 = max(0, min(int(np.floor(pix[:, 0].min())) - 1, (view.width - 1) // 2))
+    x1 = min(view.width, max(int(np.ceil(pix[:, 0].max())) + 1, view.width // 2 + 1))
+    y0 = max(0, min(int(np.floor(pix[:, 1].min())) - 1, (view.height - 1) // 2))
+    y1 = min(view.height, max(int(np.ceil(pix[:, 1].max())) + 1, view.height // 2 + 1))
+    py, px = np.mgrid[y0:y1, x0:x1] + 0.5
+    p, uv = pixel_on_sample(view, pose, px, py)
+    with np.errstate(invalid="ignore"):
+        mask = (np.abs(uv[..., 0]) <= half[0]) & (np.abs(uv[..., 1]) <= half[1])
+        if light.kind == "spot":
+            src = _vec3("light_position_m", pose.light_position_m)
+            axis = _unit(centre - src)
+            to_p = p - src
+            cos_off = (to_p @ axis) / np.linalg.norm(to_p, axis=-1)
+            beam, _ = light.cone_deg(geometry)
+            mask &= cos_off >= math.cos(math.radians(k * beam))
+    return mask, x0, y0
+
+
+def default_roi(geometry: RigGeometry, pose: RigPose, light: LightSpec, camera: CameraSpec) -> Box:
+    """The largest centred pixel box whose pixel centres all see the sample's central ``roi_fraction``.
+
+    The box is grown about the image centre (where the sample centre projects) one pixel a side at a
+    time, alternating x and y, while it stays inside the mask; it is at least the central 1-2 pixels
+    even when those miss the region (a grazing view at low resolution).
+    """
+    mask, ox, oy = _roi_mask(geometry, pose, light, camera)
+    h, w = mask.shape
+    area = np.zeros((h + 1, w + 1), dtype=np.int64)
+    area[1:, 1:] = np.cumsum(np.cumsum(mask, axis=0), axis=1)
+
+    def inside(x0: int, y0: int, x1: int, y1: int) -> bool:
+        x0, x1, y0, y1 = x0 - ox, x1 - ox, y0 - oy, y1 - oy
+        if x0 < 0 or y0 < 0 or x1 > w or y1 > h:
+            return False
+        count = area[y1, x1] - area[y0, x1] - area[y1, x0] + area[y0, x0]
+        return bool(count == (x1 - x0) * (y1 - y0))
+
+    width, height = camera.resolution
+    x0, x1 = (width - 1) // 2, width // 2 + 1
+    y0, y1 = (height - 1) // 2, height // 2 + 1
+    grow = [True, True]
+    while any(grow):
+        if grow[0]:
+            grow[0] = inside(x0 - 1, y0, x1 + 1, y1)
+            if grow[0]:
+                x0, x1 = x0 - 1, x1 + 1
+        if grow[1]:
+            grow[1] = inside(x0, y0 - 1, x1, y1 + 1)
+            if grow[1]:
+                y0, y1 = y0 - 1, y1 + 1
+    return x0, y0, x1, y1
+
+
+def roi_box(geometry: RigGeometry, pose: RigPose, light: LightSpec, camera: CameraSpec) -> Box:
+    """The camera's ROI: ``camera.roi`` if given, else ``default_roi`` for this pose."""
+    return camera.roi if camera.roi is not None else default_roi(geometry, pose, light, camera)

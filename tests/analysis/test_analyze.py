@@ -1,0 +1,279 @@
+"""``gonio analyze`` on a real simulated run and on MERL files: the fit, the report, and clear errors on bad input."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from html import escape
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from analysis.analyze import analyze, load_and_fit
+from analysis.ladder import parse_models
+from analysis.report_plots import angles_of, coverage, slices
+from analysis.result import Analysis
+from gonio import cli
+from model import CookTorrance
+from model.base import Model
+from model.fit.select import select
+from model.geometry import degrees_to_vector
+from model.merl import MerlTable, write_merl
+from model.serialize import from_json_dict
+from rig.run.session import start_run
+from tests.run_helpers import GOLD, in_plane_sweep, sim_rig
+
+PNG = b"\x89PNG\r\n\x1a\n"
+FIGURES = ("slices", "polar", "residuals", "coverage")
+THETA_O = [-70.0, -50.0, -30.0, -10.0, 0.0, 10.0, 30.0, 50.0, 70.0]
+PLASTIC = CookTorrance(alpha=0.2, fresnel="dielectric", eta=1.5, rho_d=(0.2, 0.3, 0.4))
+
+
+@pytest.fixture(scope="module")
+def gold_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One finished in-plane run of rough gold (GGX alpha 0.3) on the simulated rig, shared by the module."""
+    run = tmp_path_factory.mktemp("gold") / "run"
+    start_run(sim_rig(GOLD), in_plane_sweep([20.0, 50.0], THETA_O), run, progress=False)
+    return run
+
+
+@pytest.fixture(scope="module")
+def gold_report(gold_run: Path) -> tuple[Analysis, Path]:
+    """The run analysed from Python, with a ladder that holds the right model (a GGX conductor) and two simpler ones.
+
+    Returns the analysis (fitted again: 17 samples fit in a fraction of a second) and the report's index.html.
+    """
+    lines: list[str] = []
+    ladder = "lambert,lambert_ggx_schlick,ggx_conductor"
+    page = analyze(gold_run, models=parse_models(ladder), log=lines.append)
+    assert any(line.startswith("fitting ggx_conductor (7 parameters)") for line in lines), lines
+    assert f"wrote {gold_run / 'analysis' / 'fit.json'}" in lines
+    return load_and_fit(gold_run, models=parse_models(ladder)), page
+
+
+def write_merl_of(model: Model, path: Path) -> Path:
+    """A MERL .binary file tabulating a known model (about a second for 1.46 million bins)."""
+    write_merl(MerlTable.from_model(model), path)
+    return path
+
+
+def stopped_copy(run: Path, dest: Path, points: int, reason: str = "interrupted by the operator") -> Path:
+    """A copy of ``run`` as if it had stopped after ``points`` points: journal cut there, no table, status stopped."""
+    shutil.copytree(run, dest, ignore=shutil.ignore_patterns("samples.csv", "status.json", "analysis", "lock"))
+    kept, seen = [], 0
+    for line in (run / "journal.jsonl").read_text().splitlines(keepends=True):
+        if json.loads(line)["kind"] == "point":
+            if seen == points:
+                break
+            seen += 1
+        kept.append(line)
+    (dest / "journal.jsonl").write_text("".join(kept))
+    (dest / "status.json").write_text(json.dumps({"state": "stopped", "reason": reason}))
+    return dest
+
+
+def fit_doc(out: Path) -> dict[str, Any]:
+    return json.loads((out / "fit.json").read_text())
+
+
+def planned(run: Path) -> int:
+    """The number of reachable points the run's plan held (from its manifest)."""
+    return int(json.loads((run / "manifest.json").read_text())["points"])
+
+
+@pytest.mark.mitsuba
+def test_the_fit_recovers_the_simulated_gold_roughness(gold_report: tuple[Analysis, Path]) -> None:
+    a, page = gold_report
+    doc = fit_doc(page.parent)
+    assert doc["chosen"] == "ggx_conductor" and doc["source"]["state"] == "finished"
+    assert doc["source"]["measured"] == doc["source"]["planned"] == a.samples.n
+    chosen = next(c for c in doc["candidates"] if c["name"] == "ggx_conductor")
+    alpha, se = chosen["params"]["alpha"], chosen["std_errors"]["alpha"]
+    assert abs(alpha - GOLD["alpha"]) < 4 * se and abs(alpha / GOLD["alpha"] - 1) < 0.03, (alpha, se)
+    assert {c["name"] for c in doc["candidates"]} == {"lambert", "lambert+ggx_schlick", "ggx_conductor"}
+    assert all(c["chi2"] > 0 and c["bic"] >= chosen["bic"] - 2.0 for c in doc["candidates"])
+    # The chosen model's JSON form rebuilds the same model.
+    model = from_json_dict(doc["model"], "fit.json")
+    assert doc["model"]["model"] == "CookTorrance" and doc["model"]["params"]["alpha"] == alpha
+    wi, wo = a.samples.wi, a.samples.wo
+    np.testing.assert_allclose(model.eval(wi, wo), a.selection.chosen.model.eval(wi, wo), rtol=1e-12)
+
+
+@pytest.mark.mitsuba
+def test_point_errors_weight_by_the_capture_noise_and_say_so(gold_run: Path, tmp_path: Path) -> None:
+    # The table's brdf_se holds the calibration's share (albedo 0.5 %, references), common to every point;
+    # counted per point it pushes chi2/dof well below 1. The capture's own errors test the model against its noise.
+    ladder = parse_models("ggx_conductor")
+    total = load_and_fit(gold_run, models=ladder).selection.chosen
+    point = load_and_fit(gold_run, models=ladder, errors="point").selection.chosen
+    assert point.reduced_chi2 > 1.5 * total.reduced_chi2 and abs(point.reduced_chi2 - 1) < abs(total.reduced_chi2 - 1)
+    assert point.param("alpha")[1] < total.param("alpha")[1]
+    assert abs(point.param("alpha")[0] - GOLD["alpha"]) < 4 * point.param("alpha")[1] + 1e-4
+    page = analyze(gold_run, tmp_path / "report", models=ladder, errors="point")
+    assert fit_doc(page.parent)["errors"] == "point"
+
+
+@pytest.mark.mitsuba
+def test_the_ladder_chooses_exactly_as_select_does(gold_report: tuple[Analysis, Path]) -> None:
+    a, _ = gold_report
+    ref = select(a.samples, list(a.ladder), loss=a.loss, starts=a.starts)
+    assert a.selection.chosen_name == ref.chosen_name and a.selection.reason == ref.reason
+    assert a.selection.table() == ref.table()
+    assert set(a.fit_times_s) == {c.name for c in ref.candidates} and min(a.fit_times_s.values()) > 0
+
+
+@pytest.mark.mitsuba
+def test_the_report_shows_source_choice_reason_warnings_and_figures(gold_report: tuple[Analysis, Path]) -> None:
+    a, page = gold_report
+    assert page == page.parent / "index.html" and page.parent.name == "analysis"
+    html = page.read_text()
+    for name in FIGURES:
+        png, svg = page.parent / "figures" / f"{name}.png", page.parent / "figures" / f"{name}.svg"
+        assert png.read_bytes()[:8] == PNG and png.stat().st_size > 10_000
+        assert svg.read_text().lstrip().startswith("<?xml") and "<svg" in svg.read_text()[:1000]
+    links = re.findall(r'(?:src|href)="([^"]+)"', html)
+    figure_links = [link for link in links if link.startswith("figures/")]
+    assert len(figure_links) == 2 * len(FIGURES) and all((page.parent / link).is_file() for link in links)
+    assert "<script" not in html.lower()
+    assert "ggx_conductor (chosen)" in html and "CookTorrance" in html and "alpha" in html
+    # The reason verbatim (escaped) and every candidate's row.
+    assert escape(a.selection.reason) in html
+    assert all(f"<td>{escape(c.name)}" in html for c in a.selection.candidates)
+    # The fits' warnings are listed (an in-plane sweep leaves out-of-plane behaviour to isotropy).
+    assert "lie in one plane" in html and a.warnings
+    n = planned(page.parent.parent)
+    assert "finished" in html and f"{n} measured of {n} planned" in html and "in_plane" in html
+    assert "CookTorrance(alpha=0.3" in html  # the simulated material
+    # Every sample of an in-plane sweep is in the plane of incidence: the slices use them all.
+    assert a.samples.n == n and f"({n} of {n} samples within 2° of the plane" in html
+    assert re.search(r"\d+ of 81 \(theta_h, theta_d\) cells", html)
+
+
+@pytest.mark.mitsuba
+def test_a_stopped_run_is_analysed_as_far_as_it_got_with_a_warning(gold_run: Path, tmp_path: Path, capsys) -> None:
+    run = stopped_copy(gold_run, tmp_path / "run", points=11)
+    out = tmp_path / "report"
+    code = cli.main(["analyze", str(run), "--out", str(out), "--models", "lambert,ggx_conductor", "--starts", "2"])
+    assert code == 0, capsys.readouterr().err
+    stdout = capsys.readouterr().out.splitlines()
+    assert stdout[0] == str(out / "index.html") and stdout[1].startswith("chosen: ggx_conductor")
+    html = (out / "index.html").read_text()
+    assert f"run stopped: interrupted by the operator; 11 of {planned(gold_run)} points" in html
+    doc = fit_doc(out)
+    assert doc["source"]["state"] == "stopped" and doc["source"]["measured"] == doc["n_samples"] == 11
+    alpha = next(c for c in doc["candidates"] if c["name"] == "ggx_conductor")["params"]["alpha"]
+    assert abs(alpha / GOLD["alpha"] - 1) < 0.05
+    # The chosen model is exported and linked: a Mitsuba fragment and a glTF material (gold is a metal).
+    for name in ("material.json", "mitsuba_bsdf.xml", "mitsuba_bsdf.json", "gltf_material.json"):
+        assert (out / "export" / name).stat().st_size > 0 and f'href="export/{name}"' in html
+    gltf = json.loads((out / "export" / "gltf_material.json").read_text())
+    assert gltf["pbrMetallicRoughness"]["metallicFactor"] > 0.9
+    assert not (out / "export" / "material.binary").exists()  # 35 MB: only with --merl
+
+
+@pytest.fixture(scope="module")
+def plastic_merl(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_merl_of(PLASTIC, tmp_path_factory.mktemp("merl") / "plastic.binary")
+
+
+def test_a_merl_file_is_imported_and_its_model_recovered(plastic_merl: Path, tmp_path: Path, capsys) -> None:
+    source = tmp_path / "paint.binary"
+    source.symlink_to(plastic_merl)
+    assert cli.main(["analyze", str(source), "--samples", "3000", "--compare", str(plastic_merl)]) == 0
+    out = tmp_path / "paint-analysis"  # the default report directory sits beside the MERL file
+    captured = capsys.readouterr()
+    assert captured.out.splitlines()[0] == str(out / "index.html")
+    assert "loaded MERL table" in captured.err and "fitting lambert+ggx_dielectric (5 parameters)" in captured.err
+    doc = fit_doc(out)
+    assert doc["chosen"] == "lambert+ggx_dielectric" and doc["source"]["kind"] == "merl"
+    assert doc["n_samples"] == 3000 and doc["model"]["model"] == "CookTorrance"
+    params = doc["model"]["params"]
+    assert params["alpha"] == pytest.approx(0.2, rel=1e-3) and params["eta"] == pytest.approx(1.5, rel=1e-3)
+    assert params["rho_d"] == pytest.approx([0.2, 0.3, 0.4], rel=1e-3)
+    html = (out / "index.html").read_text()
+    assert "std errors assumed" in html and "references dotted" in html
+    assert "MERL reference plastic.binary" in html and "MERL table paint.binary (source)" in html
+    assert all((out / "figures" / f"{n}.png").read_bytes()[:8] == PNG for n in FIGURES)
+
+
+def short_file(d: Path) -> Path:
+    (d / "short.binary").write_bytes(b"\0" * 100)
+    return d / "short.binary"
+
+
+@pytest.mark.parametrize(
+    ("make", "extra", "expected", "names_source"),
+    [
+        (lambda d: d / "missing", [], "no such file or directory", True),
+        (lambda d: d, [], "not a run directory", True),
+        (short_file, [], "header dimensions (0, 0, 0), expected (90, 90, 180) (SOURCE: expected a MERL", True),
+        (short_file, ["--models", "lambert,phong"], "unknown model 'phong'", False),
+        (short_file, ["--loss", "l3"], "--loss 'l3': expected one of l2, cosine_l2, log, cbrt", False),
+        (short_file, ["--errors", "point"], "is a MERL file, which has no readings", True),
+    ],
+    ids=["missing", "not-a-run", "bad-merl", "unknown-model", "bad-loss", "point-errors-of-merl"],
+)
+def test_bad_input_is_exit_code_2_naming_what_was_wrong(make, extra, expected, names_source, tmp_path, capsys) -> None:
+    source = make(tmp_path)
+    assert cli.main(["analyze", str(source), "--quiet", *extra]) == 2
+    err = capsys.readouterr().err
+    assert expected in err, err
+    assert (str(source) in err) == names_source, err
+
+
+def test_a_merl_compare_file_that_is_not_merl_is_bad_input(plastic_merl: Path, tmp_path: Path, capsys) -> None:
+    bogus = tmp_path / "ref.binary"
+    bogus.write_bytes(np.array([90, 90, 90], dtype="<i4").tobytes())
+    assert cli.main(["analyze", str(plastic_merl), "--compare", str(bogus), "--quiet", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert str(bogus) in err and "header dimensions" in err
+
+
+@pytest.mark.mitsuba
+def test_a_run_with_too_few_points_names_the_run_and_the_fit_error(gold_run: Path, tmp_path: Path, capsys) -> None:
+    run = stopped_copy(gold_run, tmp_path / "run", points=1)
+    assert cli.main(["analyze", str(run), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"{run}: cannot fit" in err and "no candidate could be fitted" in err and "cannot determine" in err
+    assert not (run / "analysis").exists()
+    assert cli.main(["analyze", str(gold_run), "--samples", "100", "--quiet"]) == 2
+    assert "only a MERL source is subsampled" in capsys.readouterr().err
+
+
+def test_help_shows_an_example(capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["analyze", "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    assert "Example: gonio analyze" in out and "--compare" in out and "--samples" in out
+
+
+def test_slices_keep_only_samples_near_the_plane_of_incidence() -> None:
+    # Two incidences in the plane (phi_o = 180 or 0), plus points 1 and 10 degrees out of it.
+    ti = np.array([30.0] * 5 + [60.0] * 5 + [30.0, 30.0])
+    to = np.array([10.0, 20.0, 40.0, 60.0, 0.0] * 2 + [40.0, 40.0])
+    po = np.array([180.0, 0.0, 180.0, 0.0, 0.0] * 2 + [181.0, 190.0])
+    ang = angles_of(degrees_to_vector(ti, 0.0), degrees_to_vector(to, po))
+    np.testing.assert_allclose(ang.signed_theta_o[:5], [10.0, -20.0, 40.0, -60.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(ang.off_plane[10:], [np.degrees(np.arcsin(np.sin(np.radians(40)) * np.sin(
+        np.radians(d)))) for d in (1.0, 10.0)], rtol=1e-9)  # fmt: skip
+    cuts = slices(ang)
+    assert [round(c.theta_i_deg, 6) for c in cuts] == [30.0, 60.0]
+    assert cuts[0].index.tolist() == [0, 1, 2, 3, 4, 10] and cuts[1].index.tolist() == [5, 6, 7, 8, 9]
+
+
+def test_slices_fall_back_to_a_grid_of_incidences_and_coverage_counts_cells() -> None:
+    rng = np.random.default_rng(0)
+    wi = degrees_to_vector(rng.uniform(0, 85, 4000), rng.uniform(0, 360, 4000))
+    wo = degrees_to_vector(rng.uniform(0, 85, 4000), rng.uniform(0, 360, 4000))
+    ang = angles_of(wi, wo)
+    cuts = slices(ang)
+    assert [c.theta_i_deg for c in cuts] == [15.0, 30.0, 45.0, 60.0, 75.0]
+    for c in cuts:
+        assert np.all(np.abs(ang.theta_i[c.index] - c.theta_i_deg) <= c.tol_deg) and np.all(ang.off_plane[c.index] <= 2)
+    cov = coverage(angles_of(degrees_to_vector([5.0, 5.0, 45.0], 0.0), degrees_to_vector([5.0, 5.0, 45.0], 180.0)))
+    # Mirror pairs: theta_h = 0, theta_d = theta_i: two distinct cells of 81.
+    assert int(cov.occupied_hd.sum()) == 2 and cov.fraction_hd == pytest.approx(2 / 81)

@@ -1,0 +1,94 @@
+import csv
+
+import numpy as np
+import pytest
+
+import model as m
+from gonio import cli
+from gonio.models_demo import in_plane_slice
+
+
+def test_models_writes_figure_and_table(tmp_path, capsys):
+    assert cli.main(["models", "--out", str(tmp_path)]) == 0
+    png = tmp_path / "brdf_slices.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with open(tmp_path / "brdf_slices.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 4 * 3 * 357
+    values = np.array([[float(r[k]) for k in ("f_r_red_per_sr", "f_r_green_per_sr", "f_r_blue_per_sr")] for r in rows])
+    assert np.all(np.isfinite(values)) and np.all(values >= 0)
+    out = capsys.readouterr().out
+    assert "max albedo" in out and "NO" not in out.split("finite>=0")[1]
+
+
+def test_slice_peaks_at_the_mirror_direction():
+    theta_o = np.linspace(-89.0, 89.0, 357)
+    f = in_plane_slice(m.CookTorrance(alpha=0.05, eta=1.5, fresnel="dielectric"), 40.0, theta_o)
+    assert theta_o[np.argmax(f[:, 0])] == -40.0
+
+
+COMMANDS = [["demo"], ["models"], ["run"], ["plan"], ["resume"], ["servo", "scan"], ["servo", "ping"],
+            ["servo", "status"], ["servo", "move"], ["sim", "servos"], ["sim", "grbl"], ["sim", "rig"], ["analyze"],
+            ["adaptive"]]  # fmt: skip
+
+
+@pytest.mark.parametrize("command", COMMANDS, ids=" ".join)
+def test_every_command_explains_itself_with_an_example(command, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main([*command, "--help"])
+    assert exc.value.code == 0
+    assert f"Example: gonio {' '.join(command)}" in capsys.readouterr().out
+
+
+def test_unknown_command_is_bad_input(capsys):
+    try:
+        cli.main(["frobnicate"])
+    except SystemExit as exc:
+        assert exc.code == 2
+    assert "invalid choice" in capsys.readouterr().err
+
+
+EXAMPLES = __import__("pathlib").Path(__file__).resolve().parents[2] / "examples"
+
+
+def test_plan_lists_unreachable_points_and_an_estimate_without_moving(capsys):
+    sweep, rig = EXAMPLES / "sweep_in_plane.toml", EXAMPLES / "rig_simulated.toml"
+    assert cli.main(["plan", str(sweep), "--rig", str(rig), "--list"]) == 0
+    out = capsys.readouterr().out
+    assert "32 to measure, 1 unreachable" in out and "min_separation" in out
+    assert "Estimated run time" in out
+    assert len([line for line in out.splitlines() if "->" in line]) == 32
+
+
+def test_a_bad_sweep_file_is_bad_input(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[sweep]\nkind = 'grid'\n")
+    assert cli.main(["plan", str(bad)]) == 2
+    assert f"{bad}: [sweep] a 'grid' sweep needs theta_i_deg" in capsys.readouterr().err
+
+
+@pytest.mark.mitsuba
+def test_demo_measures_gold_on_the_simulated_rig(tmp_path, capsys):
+    assert cli.main(["demo", "--out", str(tmp_path), "--points", "5", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert (tmp_path / "demo.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with open(tmp_path / "run" / "samples.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) >= 8
+    median = float(out.split("median |measured/model - 1| = ")[1].split("%")[0]) / 100
+    assert median < 0.03
+
+
+def test_adaptive_measures_its_budget_with_the_reference_snr_asked_for(tmp_path, capsys):
+    from tests.run_helpers import reference_relative_errors
+
+    out = tmp_path / "ad"
+    args = ["adaptive", "--rig", str(EXAMPLES / "rig_simulated.toml"), "--out", str(out), "--model", "lambert",
+            "--budget", "12", "--initial", "8", "--batch", "4", "--snr", "50", "--reference-snr", "1200"]  # fmt: skip
+    assert cli.main(args) == 0
+    assert "12 captures in 2 rounds" in capsys.readouterr().out
+    rel = reference_relative_errors(out)
+    # The photon noise is planned to 1/1200; the journal's error also counts a 16-pixel scatter.
+    assert len(rel) >= 4 and np.median(rel) <= 1.1 / 1200
+    assert cli.main([*args[:4], str(tmp_path / "bad"), "--reference-snr", "0"]) == 2
+    assert "reference_snr (0.0) must be > 0" in capsys.readouterr().err

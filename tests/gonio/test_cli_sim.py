@@ -1,0 +1,123 @@
+"""``gonio sim servos|grbl`` as a user runs them: a separate process, its device path on stdout, Ctrl-C."""
+
+from __future__ import annotations
+
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import numpy as np
+import pytest
+import serial
+
+from rig.instrument.links.dynamixel_bus import DynamixelBus
+
+
+def _first_line(proc: subprocess.Popen[str], timeout_s: float) -> str:
+    """The first stdout line of ``proc``, waiting at most ``timeout_s`` seconds (never a blind sleep)."""
+    assert proc.stdout is not None
+    sel = selectors.DefaultSelector()
+    sel.register(proc.stdout, selectors.EVENT_READ)
+    if not sel.select(timeout_s):
+        proc.kill()
+        raise AssertionError(f"no device path on stdout within {timeout_s} s; stderr: {proc.stderr}")
+    return proc.stdout.readline().strip()
+
+
+@contextmanager
+def gonio_sim(*args: str) -> Iterator[tuple[subprocess.Popen[str], str]]:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gonio.cli", "sim", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        yield proc, _first_line(proc, timeout_s=60.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.communicate(timeout=10)
+
+
+def _interrupt(proc: subprocess.Popen[str]) -> int:
+    proc.send_signal(signal.SIGINT)
+    return proc.wait(timeout=10)
+
+
+def test_sim_servos_serves_a_bus_the_sdk_can_scan() -> None:
+    with gonio_sim("servos", "--ids", "3,7", "--baud", "57600") as (proc, port):
+        assert port.startswith("/dev/pts/")
+        with DynamixelBus(port, 57_600, latency_timer_ms=60.0) as bus:
+            found = bus.scan(baudrates=(57_600,))
+        assert [(f.servo_id, f.model_number) for f in found] == [(3, 1020), (7, 1020)]
+        assert _interrupt(proc) == 0
+
+
+def test_sim_grbl_answers_with_its_banner() -> None:
+    with gonio_sim("grbl", "--axes", "XY") as (proc, port):
+        with serial.Serial(port, 115200, timeout=0.05) as ser:
+            seen = b""
+            deadline = time.monotonic() + 10.0
+            while b"Grbl 1.1" not in seen and time.monotonic() < deadline:
+                seen += ser.read(256)
+        assert b"Grbl 1.1h ['$' for help]" in seen
+        assert _interrupt(proc) == 0
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["servos", "--ids", "1,x"], "servo ids '1,x': expected e.g. 1,2,3 or 1-4"),
+        (["servos", "--baud", "1500000"], "invalid choice: 1500000"),
+        (["grbl", "--speed", "0"], "speed '0': expected a positive factor"),
+    ],
+)
+def test_sim_bad_arguments(args: list[str], message: str) -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "gonio.cli", "sim", *args], capture_output=True, text=True, timeout=60
+    )
+    assert result.returncode == 2
+    assert message in result.stderr
+
+
+@pytest.mark.mitsuba
+def test_sim_rig_serves_servos_and_writes_frames_of_the_pose_they_hold(tmp_path) -> None:
+    from acquisition.files.raw import read_raw
+    from rig.instrument.clock import SystemClock
+    from rig.instrument.geometry import RigGeometry
+    from rig.instrument.kinematics import inverse, require
+    from rig.instrument.links.dynamixel import DynamixelLink
+    from rig.run.config import default_axes
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gonio.cli", "sim", "rig", "--frames", str(tmp_path), "--speed", "20"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        port = _first_line(proc, timeout_s=60.0)
+        axes = default_axes(RigGeometry())
+        with DynamixelLink.open(port, axes, clock=SystemClock(), latency_timer_ms=60.0) as link:
+            target = require(inverse(RigGeometry(), 30.0, 0.0, 20.0, 180.0))
+            link.move_to({k: float(v) for k, v in target.as_dict().items()})
+            held = link.wait_in_position(timeout_s=60.0)
+            assert abs(held["light"] - float(target.light)) < 0.2
+            assert proc.stdin is not None
+            frames = []
+            for _ in range(2):
+                proc.stdin.write("capture 0.02\n")
+                proc.stdin.flush()
+                frames.append(read_raw(_first_line(proc, timeout_s=60.0)))
+        assert frames[0].exposure_s == pytest.approx(0.02)
+        black = max(np.atleast_1d(frames[0].black_level))
+        assert float(frames[0].data.mean()) > black + 10  # lit: the sample is in view at this pose
+        proc.stdin.write("focus now\n")
+        proc.stdin.flush()
+        assert "expected 'capture SECONDS'" in _first_line(proc, timeout_s=10.0)
+        proc.stdin.close()
+        assert proc.wait(timeout=30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(timeout=10)

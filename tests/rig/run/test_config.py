@@ -1,0 +1,163 @@
+"""Rig and sweep files: the shipped examples load, and every mistake names the file, the key and the value."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from rig.run.config import ConfigError, load_rig, load_sweep, material_from, parse, rig_config, sweep_config
+from rig.run.config_schema import RigFile, SweepFile
+
+EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
+
+
+@pytest.mark.parametrize("name", ["rig_simulated.toml", "rig_dynamixel.toml"])
+def test_example_rigs_load(name: str) -> None:
+    rig = load_rig(EXAMPLES / name)
+    assert [a.name for a in rig.axes] == list(rig.geometry.joint_names)
+
+
+def test_rig_file_values_reach_the_objects() -> None:
+    rig = load_rig(EXAMPLES / "rig_dynamixel.toml")
+    assert rig.geometry.light_radius_m == 0.6 and rig.geometry.min_separation_deg == 10.0
+    tilt = next(a for a in rig.axes if a.name == "tilt")
+    assert tilt.address == 3 and tilt.gear_ratio == 3.0
+    assert rig.file.camera.roi == (2000, 1300, 2200, 1500)
+
+
+@pytest.mark.parametrize(("name", "count"), [("sweep_in_plane.toml", 33), ("sweep_grid.toml", None),
+                                             ("sweep_rusinkiewicz.toml", None)])  # fmt: skip
+def test_example_sweeps_load(name: str, count: int | None) -> None:
+    sweep = load_sweep(EXAMPLES / name)
+    assert sweep.directions_deg.ndim == 2 and sweep.directions_deg.shape[1] == 4
+    assert len(sweep.directions_deg) > 0
+    if count is not None:
+        assert len(sweep.directions_deg) == count
+
+
+def _write(tmp_path: Path, text: str, name: str = "bad.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+RIG_MISTAKES = [
+    ("[geometry]\nlight_radius_m = -0.5\n", r"geometry\.light_radius_m = -0\.5: expected a value greater than 0"),
+    (
+        "[geometry]\nlite_radius_m = 0.5\n",
+        r"geometry\.lite_radius_m = 0\.5: unknown key; expected one of .*light_radius_m",
+    ),
+    ("[link]\nkind = 'dynamixel'\n", r"\[link\] a dynamixel link needs port"),
+    ("[link]\nkind = 'can'\n", r"link\.kind = 'can': expected a value 'simulated', 'dynamixel' or 'grbl'"),
+    ("[axes.light]\nid = 'one'\n", r"axes\.light\.id = 'one': expected a valid integer"),
+    ("[axes.light]\nidd = 3\n", r"axes\.light\.idd = 3: unknown key; expected one of direction, gear_ratio, id,"),
+    ("[axes.arm]\nid = 1\n", r"axes\.arm: no such joint in layout 'four_axis'; expected one of light, camera"),
+    ("[axes.light]\nid = 1\n[axes.camera]\nid = 1\n", r"address 1 is used by two joints"),
+    ("[geometry]\nsample_width_m = 2.0\n", r"\[geometry\] RigGeometry\.light_radius_m = 0\.5 m.*half-diagonal"),
+    ("[camera]\nresolution = [32, 32, 3]\n", r"camera\.resolution = \[32, 32, 3\]"),
+    ("[camera]\nroi = [0, 0, 64, 64]\n", r"camera\.roi = \[0, 0, 64, 64\]: expected a box .* inside 32x32 pixels"),
+    ("[reference]\nalbedo = 1.5\n", r"reference\.albedo = 1\.5: expected a value less than or equal to 1"),
+    ("[simulation.material]\nmodel = 'Glass'\n", r"simulation\.material\.model = 'Glass': expected one of .*Lambert"),
+    ("[simulation.material]\nmodel = 'Lambert'\nrho_d = 3.0\n", r"simulation\.material: "),
+    ("name = 5\n", r"name = 5: expected a valid string"),
+    ("[geometry\n", r"not valid TOML"),
+]
+
+
+@pytest.mark.parametrize(("text", "message"), RIG_MISTAKES)
+def test_rig_mistakes_name_file_key_and_value(tmp_path: Path, text: str, message: str) -> None:
+    path = _write(tmp_path, text)
+    with pytest.raises(ConfigError, match=message) as info:
+        material_from(load_rig(path))
+    assert str(path) in str(info.value)
+
+
+SWEEP_MISTAKES = [
+    ("[capture]\ntarget_snr = 100.0\n", r"sweep: missing; this key is required"),
+    ("[sweep]\nkind = 'grid'\ntheta_i_deg = [0.0]\n", r"\[sweep\] a 'grid' sweep needs theta_o_deg"),
+    ("[sweep]\nkind = 'spiral'\n", r"sweep\.kind = 'spiral': expected a value 'grid', 'in_plane'"),
+    ("[sweep]\nkind = 'list'\npoints = [[0.0, 0.0, 30.0]]\n",
+     r"sweep\.points\[0\]: too few items; expected at least 4"),
+    ("[sweep]\nkind = 'list'\npoints = [[0.0, 0.0, 95.0, 0.0]]\n", r"sweep: .*row 0"),
+    ("[sweep]\nkind = 'grid'\ntheta_i_deg = [0.0]\ntheta_o_deg = [10.0]\npoints = [[0.0, 0.0, 1.0, 0.0]]\n",
+     r"points has no meaning in a 'grid' sweep"),
+    ("[sweep]\nkind = 'in_plane'\ntheta_i_deg = ['30']\ntheta_o_deg = [10.0]\n",
+     r"sweep\.theta_i_deg\[0\] = '30': expected a valid number"),
+    ("[sweep]\nkind = 'in_plane'\ntheta_i_deg = [30.0]\ntheta_o_deg = [10.0]\n[capture]\nexposures_s = [0.0]\n",
+     r"capture\.exposures_s\[0\] = 0\.0: expected a value greater than 0"),
+    ("[sweep]\nkind = 'in_plane'\ntheta_i_deg = [30.0]\ntheta_o_deg = [10.0]\n[capture]\nsnr = 5.0\n",
+     r"capture\.snr = 5\.0: unknown key; expected one of .*target_snr"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("text", "message"), SWEEP_MISTAKES)
+def test_sweep_mistakes_name_file_key_and_value(tmp_path: Path, text: str, message: str) -> None:
+    path = _write(tmp_path, text)
+    with pytest.raises(ConfigError, match=message) as info:
+        load_sweep(path)
+    assert str(path) in str(info.value)
+
+
+def test_missing_file_is_named(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"nope\.toml: no such file"):
+        load_rig(tmp_path / "nope.toml")
+
+
+# -- fuzzing: whatever a file holds, loading it gives a valid config or a ConfigError, nothing else ---------------
+
+toml_scalars = st.one_of(
+    st.integers(-10**6, 10**6), st.floats(allow_nan=False), st.text(max_size=8), st.booleans(),
+    st.lists(st.floats(-200, 200, allow_nan=False), max_size=4),
+)  # fmt: skip
+
+
+def _mutate(doc: dict[str, Any], path: list[str], value: Any) -> dict[str, Any]:
+    """Set (or add) a key somewhere in a nested document."""
+    out = {k: dict(v) if isinstance(v, dict) else v for k, v in doc.items()}
+    node = out
+    for key in path[:-1]:
+        child = node.get(key)
+        node[key] = dict(child) if isinstance(child, dict) else {}
+        node = node[key]
+    node[path[-1]] = value
+    return out
+
+
+RIG_DOC = tomllib.loads((EXAMPLES / "rig_simulated.toml").read_text())
+SWEEP_DOC = tomllib.loads((EXAMPLES / "sweep_in_plane.toml").read_text())
+rig_keys = st.sampled_from([
+    ["geometry", "layout"], ["geometry", "light_radius_m"], ["geometry", "min_separation_deg"], ["link", "kind"],
+    ["link", "move_timeout_s"], ["camera", "resolution"], ["camera", "spp"], ["camera", "noise", "e_per_dn"],
+    ["reference", "albedo"], ["reference", "every"], ["simulation", "seed"], ["simulation", "material", "alpha"],
+    ["axes", "light", "id"], ["axes", "tilt", "gear_ratio"], ["bogus"], ["geometry", "limits", "tilt"],
+])  # fmt: skip
+sweep_keys = st.sampled_from([
+    ["sweep", "kind"], ["sweep", "theta_i_deg"], ["sweep", "theta_o_deg"], ["sweep", "points"],
+    ["sweep", "isotropic"], ["capture", "target_snr"], ["capture", "max_frames"], ["capture", "exposures_s"],
+    ["name"], ["capture", "bogus"],
+])  # fmt: skip
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(rig_keys, toml_scalars)
+def test_fuzzed_rig_files_load_or_say_why(path: list[str], value: Any) -> None:
+    doc = _mutate(RIG_DOC, path, value)
+    try:
+        material_from(rig_config(parse(doc, RigFile, "fuzz.toml"), "fuzz.toml"))
+    except ConfigError as exc:
+        assert str(exc).startswith("fuzz.toml") and len(str(exc)) > len("fuzz.toml: ")
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(sweep_keys, toml_scalars)
+def test_fuzzed_sweep_files_load_or_say_why(path: list[str], value: Any) -> None:
+    doc = _mutate(SWEEP_DOC, path, value)
+    try:
+        sweep_config(parse(doc, SweepFile, "fuzz.toml"), "fuzz.toml")
+    except ConfigError as exc:
+        assert str(exc).startswith("fuzz.toml") and len(str(exc)) > len("fuzz.toml: ")

@@ -1,0 +1,92 @@
+"""A run killed with SIGKILL and resumed ends with exactly the table of a run that was never interrupted."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from gonio.cli import main
+from rig.run.config import load_rig, load_sweep
+from rig.run.session import resume_run, start_run
+
+pytestmark = pytest.mark.mitsuba
+
+RIG = """
+[simulation]
+seed = 11
+[simulation.material]
+model = "CookTorrance"
+alpha = 0.25
+eta = [0.18, 0.42, 1.37]
+k = [3.42, 2.35, 1.77]
+[reference]
+every = 7
+"""
+SWEEP = """
+[sweep]
+kind = "in_plane"
+theta_i_deg = [15.0, 40.0, 65.0]
+theta_o_deg = [-70.0, -45.0, -20.0, 0.0, 20.0, 45.0, 70.0]
+[capture]
+target_snr = 150.0
+"""
+
+
+def _files(tmp_path: Path) -> tuple[Path, Path]:
+    rig, sweep = tmp_path / "rig.toml", tmp_path / "sweep.toml"
+    rig.write_text(RIG)
+    sweep.write_text(SWEEP)
+    return rig, sweep
+
+
+def _journal_lines(run: Path) -> int:
+    try:
+        return (run / "journal.jsonl").read_bytes().count(b"\n")
+    except FileNotFoundError:
+        return 0
+
+
+def _run_and_kill(rig: Path, sweep: Path, run: Path, after_records: int, resume: bool = False) -> None:
+    """Start `gonio run` (or resume) in a child process and SIGKILL it once the journal holds enough records."""
+    cmd = ["resume", str(run)] if resume else ["run", str(sweep), "--rig", str(rig), "--out", str(run)]
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[3])}
+    child = subprocess.Popen([sys.executable, "-m", "gonio.cli", *cmd, "--quiet"], env=env,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)  # fmt: skip
+    deadline = time.monotonic() + 120.0
+    try:
+        while _journal_lines(run) < after_records:
+            assert child.poll() is None, f"the run ended before it could be killed: {child.stderr.read()!r}"  # type: ignore[union-attr]
+            assert time.monotonic() < deadline, "the run never reached the kill point"
+            time.sleep(0.002)  # polling a file written by another process; nothing here waits on hardware
+        child.send_signal(signal.SIGKILL)
+    finally:
+        child.wait(timeout=30)
+    assert child.returncode == -signal.SIGKILL
+    assert not (run / "status.json").exists(), "the run finished before the kill"
+
+
+def test_killed_twice_and_resumed_equals_uninterrupted(tmp_path: Path) -> None:
+    rig, sweep = _files(tmp_path)
+    reference = start_run(load_rig(rig), load_sweep(sweep), tmp_path / "whole", progress=False)
+    run = tmp_path / "killed"
+    _run_and_kill(rig, sweep, run, after_records=3)
+    _run_and_kill(rig, sweep, run, after_records=11, resume=True)
+    resumed = resume_run(run, progress=False)
+    assert resumed.already >= 9 and resumed.measured + resumed.already == 18  # 21 directions, 3 too close
+    assert Path(resumed.table).read_bytes() == Path(reference.table).read_bytes()
+
+
+def test_resume_of_a_finished_run_measures_nothing_new(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rig, sweep = _files(tmp_path)
+    run = tmp_path / "run"
+    assert main(["run", str(sweep), "--rig", str(rig), "--out", str(run), "--quiet"]) == 0
+    before = (run / "samples.csv").read_bytes()
+    assert main(["resume", str(run), "--quiet"]) == 2
+    assert "finished" in capsys.readouterr().err
+    assert (run / "samples.csv").read_bytes() == before
