@@ -32,7 +32,7 @@ from bench._common import format_table, machine_description, median_time, unifor
 from model import kernels
 from model.base import Model
 from model.cook_torrance import CookTorrance
-from simulator.mitsuba_variant import unavailable_reason, use_variant
+from model.mitsuba.variant import unavailable_reason, use_variant
 
 Array = npt.NDArray[np.floating]
 
@@ -113,7 +113,7 @@ def measure(n: int, repeats: int) -> tuple[dict[str, tuple[int, float]], dict[st
     wi = uniform_hemisphere(rng, n, np.float32).astype(np.float64)
     wo = uniform_hemisphere(rng, n, np.float32).astype(np.float64)
     model = CookTorrance(alpha=ALPHA, eta=ALUMINIUM_ETA, k=ALUMINIUM_K)
-    kernels.warm_up(model)
+    kernels.warm_up(channels=3)
     fast: dict[str, Callable[[], object]] = {
         KERNEL: partial(model.eval, wi, wo),
         KERNEL32: partial(model.eval, wi.astype(np.float32), wo.astype(np.float32)),

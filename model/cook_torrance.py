@@ -137,11 +137,23 @@ class CookTorrance(Model):
         # 2-core VM) outweighs its speed, while numpy takes ~1 ms for 4096 pairs.
         if np.size(wi) // 3 < KERNEL_MIN_PAIRS and np.size(wo) // 3 < KERNEL_MIN_PAIRS:
             return super().eval(wi, wo)
+        f = self.compiled_eval(wi, wo)
+        return super().eval(wi, wo) if f is None else f
+
+    def compiled_eval(self, wi: npt.ArrayLike, wo: npt.ArrayLike) -> Array | None:
+        """f_r in 1/sr through the numba kernel (:mod:`model.kernels`), or None where it does not apply."""
+        cls = type(self)
+        # A subclass that changes the physics (any of these methods) must keep its own numpy path.
+        if any(getattr(cls, name) is not getattr(CookTorrance, name) for name in ("_eval", "specular", "fresnel_term")):
+            return None
         # Imported here so that numba loads at the first large evaluation, not with the package.
         from model import kernels
 
-        f = kernels.cook_torrance(self, wi, wo)
-        return super().eval(wi, wo) if f is None else f
+        params = kernels.MicrofacetParams(
+            self.fresnel, eta=self.eta, k=self.k, f0=self.f0, rho_d=self.rho_d, alpha=self.alpha,
+            scale=4.0 if self.form == "cook_torrance_1982" else 1.0, channels=self.channels,
+        )  # fmt: skip
+        return kernels.microfacet(wi, wo, self.distribution, self.masking, params)
 
     def _eval(self, p: Pair) -> Array:
         spec = self.specular(p) * self.fresnel_term(p, p.cos_d)

@@ -1,7 +1,11 @@
-"""Compiled (numba) evaluation of :class:`model.cook_torrance.CookTorrance` over arrays of direction pairs.
+"""Compiled (numba) evaluation of a Cook-Torrance microfacet BRDF over arrays of direction pairs.
+
+The kernel takes plain arrays and parameters (a distribution, masking and Fresnel name, the Fresnel
+indices, rho_d, alpha, the form's scale): it knows no model class. ``CookTorrance.eval`` dispatches here
+(:meth:`model.cook_torrance.CookTorrance.compiled_eval`), never the other way round.
 
 The numpy code in :mod:`model.base`, :mod:`model.microfacet` and :mod:`model.fresnel` stays the
-readable reference; :func:`cook_torrance` computes the same f_r in 1/sr in one pass per pair, without
+readable reference; :func:`microfacet` computes the same f_r in 1/sr in one pass per pair, without
 temporaries, on all cores. It repeats the reference's arithmetic operation for operation (same clamps,
 same association, same dtype), so float64 results agree to the last bit except where libm and scipy
 round exp and erfc differently (Beckmann). That is deliberate: near the peak at alpha = 1e-4, D depends
@@ -22,6 +26,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numba
@@ -30,7 +35,6 @@ import numpy.typing as npt
 from numba import prange
 
 from model.base import DIVISOR_FLOOR
-from model.cook_torrance import CookTorrance
 from model.geometry import float_dtype
 from model.microfacet import clamp_alpha
 
@@ -173,20 +177,11 @@ def _compiled(dist: int, mask: int, fres: int, nc: int) -> Callable[..., None]:
     return kernel
 
 
-def _config(model: object) -> tuple[int, int, int] | None:
-    """Indices of the model's choices in the tuples above, or None when the kernel does not cover it."""
-    cls = type(model)
-    # A subclass that changes the physics (any of these methods) must keep its own numpy path.
-    if not isinstance(model, CookTorrance) or any(
-        getattr(cls, name) is not getattr(CookTorrance, name) for name in ("_eval", "specular", "fresnel_term")
-    ):
+def _config(distribution: str, masking: str, fresnel: str) -> tuple[int, int, int] | None:
+    """Indices of the choices in the tuples above, or None when the kernel does not cover them."""
+    if distribution not in DISTRIBUTIONS or masking not in MASKINGS or fresnel not in FRESNELS:
         return None
-    if model.distribution not in DISTRIBUTIONS or model.masking not in MASKINGS:
-        return None
-    if model.fresnel not in FRESNELS:
-        return None
-    return (DISTRIBUTIONS.index(model.distribution), MASKINGS.index(model.masking),
-            FRESNELS.index(model.fresnel))
+    return DISTRIBUTIONS.index(distribution), MASKINGS.index(masking), FRESNELS.index(fresnel)
 
 
 def _directions(wi: npt.ArrayLike, wo: npt.ArrayLike) -> tuple[Array, Array, tuple[int, ...]] | None:
@@ -207,7 +202,27 @@ def _directions(wi: npt.ArrayLike, wo: npt.ArrayLike) -> tuple[Array, Array, tup
     return np.ascontiguousarray(a).reshape(-1), np.ascontiguousarray(b).reshape(-1), a.shape[:-1]
 
 
-def _params(model: CookTorrance, dtype: np.dtype, nc: int) -> tuple[Array, Array, Array, Consts, Consts]:
+@dataclass(frozen=True)
+class MicrofacetParams:
+    """The numbers the kernel reads: the Fresnel term's indices, rho_d, alpha and the form's scale.
+
+    ``eta`` and ``k`` (conductor), ``eta`` (dielectric) or ``f0`` (schlick) as a scalar or one value per
+    channel; ``rho_d`` the Lambertian albedo (scalar or per channel); ``alpha`` the roughness before
+    :func:`model.microfacet.clamp_alpha`; ``scale`` 1 for Walter's form, 4 for the 1982 form; ``channels``
+    None for a scalar result, else the channel count of the (..., C) result.
+    """
+
+    fresnel: str
+    eta: object = 1.5
+    k: object = 0.0
+    f0: object = 0.04
+    rho_d: object = 0.0
+    alpha: float = 0.1
+    scale: float = 1.0
+    channels: int | None = None
+
+
+def _params(m: MicrofacetParams, dtype: np.dtype, nc: int) -> tuple[Array, Array, Array, Consts, Consts]:
     """Per-channel arrays (p, q, rho_d / pi) and the constant tuples, computed as the numpy path does."""
     t = dtype.type
 
@@ -216,49 +231,52 @@ def _params(model: CookTorrance, dtype: np.dtype, nc: int) -> tuple[Array, Array
 
     p: Array
     q: Array
-    if model.fresnel == "conductor":
-        e, k = per_channel(model.eta), per_channel(model.k)
+    if m.fresnel == "conductor":
+        e, k = per_channel(m.eta), per_channel(m.k)
         e2, k2 = e * e, k * k
         p, q = e2 - k2, 4.0 * e2 * k2
-    elif model.fresnel == "dielectric":
-        p = per_channel(model.eta)
+    elif m.fresnel == "dielectric":
+        p = per_channel(m.eta)
         q = p * p
     else:
-        p = per_channel(model.f0)
+        p = per_channel(m.f0)
         q = 1.0 - p
-    rho = per_channel(model.rho_d) / np.pi
-    alpha = clamp_alpha(model.alpha)
+    rho = per_channel(m.rho_d) / np.pi
+    alpha = clamp_alpha(m.alpha)
     al, ks = t(alpha), t(0.5 * alpha)
     a2 = al**2  # as microfacet.ggx_d: the clamped alpha in the working dtype, squared there
     a_lo = 1e-150 if dtype == np.float64 else 1e-30
     kc = tuple(t(x) for x in (0.0, 1.0, 0.5, 2.0, 4.0, math.pi, math.sqrt(math.pi), np.finfo(dtype).tiny,
                               DIVISOR_FLOOR, a_lo, 40.0))
-    scale = 4.0 if model.form == "cook_torrance_1982" else 1.0
-    mp = (a2, al, ks, t(1.0) - ks, t(scale))
+    mp = (a2, al, ks, t(1.0) - ks, t(m.scale))
     return p, q, rho, kc, mp
 
 
-def cook_torrance(model: CookTorrance, wi: npt.ArrayLike, wo: npt.ArrayLike) -> Array | None:
-    """f_r in 1/sr of ``model`` at unit directions wi, wo (..., 3), or None where the kernel does not apply.
+def microfacet(
+    wi: npt.ArrayLike, wo: npt.ArrayLike, distribution: str, masking: str, params: MicrofacetParams
+) -> Array | None:
+    """f_r in 1/sr at unit directions wi, wo (..., 3), or None where the kernel does not apply.
 
-    Same shapes, dtype and values as ``Model.eval`` (the numpy path); None for configurations outside
-    :data:`DISTRIBUTIONS` x :data:`MASKINGS` x :data:`FRESNELS` and for broadcasts other than
-    equal shapes or one single direction against many.
+    Same shapes, dtype and values as ``CookTorrance``'s numpy path (``Model.eval``); None for
+    configurations outside :data:`DISTRIBUTIONS` x :data:`MASKINGS` x :data:`FRESNELS` and for broadcasts
+    other than equal shapes or one single direction against many.
     """
-    cfg = _config(model)
+    cfg = _config(distribution, masking, params.fresnel)
     dirs = None if cfg is None else _directions(wi, wo)
     if cfg is None or dirs is None:
         return None
     a, b, batch = dirs
-    channels = model.channels
+    channels = params.channels
     nc = 1 if channels is None else channels
-    p, q, rho, kc, mp = _params(model, a.dtype, nc)
+    p, q, rho, kc, mp = _params(params, a.dtype, nc)
     out = np.empty(a.size // 3 * nc, dtype=a.dtype)
     _compiled(*cfg, nc)(a, b, out, p, q, rho, kc, mp)
     return out.reshape(batch) if channels is None else out.reshape(*batch, nc)
 
 
-def warm_up(model: CookTorrance | None = None) -> None:
-    """Compile (or load from the disk cache) the float64 kernel of ``model``, default ``CookTorrance()``."""
+def warm_up(
+    distribution: str = "ggx", masking: str = "smith", fresnel: str = "conductor", channels: int | None = None
+) -> None:
+    """Compile (or load from the disk cache) the float64 kernel of one configuration (default: GGX conductor)."""
     z = np.array([[0.0, 0.0, 1.0]])
-    cook_torrance(CookTorrance() if model is None else model, z, z)
+    microfacet(z, z, distribution, masking, MicrofacetParams(fresnel, channels=channels))
