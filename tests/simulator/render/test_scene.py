@@ -1,4 +1,4 @@
-"""simulator.render.scene and simulator.render.renderer: the rig's Mitsuba scene, rendered radiance and its cache.
+"""simulator.render.scene and .view: the rig's Mitsuba scene at one pose, where its camera looks and what it sees.
 
 The references are independent of Mitsuba's scene code: radiance from the point-source law evaluated per
 pixel on geometry computed here in numpy, Mitsuba's own BSDF ``eval`` in the kinematics' local frame for
@@ -9,90 +9,33 @@ checkerboard colour0 where exactly one of frac(u), frac(v) exceeds 1/2) for the 
 from __future__ import annotations
 
 import math
-from dataclasses import astuple, replace
-from typing import Any
+from dataclasses import replace
 
-import drjit as dr
-import mitsuba as mi
-import mitsuba.scalar_rgb as mis
 import numpy as np
 import pytest
 
-from model.lambert import Lambert
-from model.mitsuba import variant as mv
-from model.predict import predict_radiance
-from model.radiometry import PointLight
 from rig.instrument.geometry import RigGeometry
-from rig.instrument.kinematics import RigPose, forward, inverse, require, world_pose
-from simulator.render import renderer as render_module
-from simulator.render.renderer import RadianceRenderer, render_radiance, roi_mean, roi_radiance
+from rig.instrument.kinematics import RigPose, forward, inverse, require
+from simulator.render.renderer import render_radiance, roi_mean, roi_radiance
 from simulator.render.scene import build_scene, sample_to_world
 from simulator.render.spec import CameraSpec, LightSpec
 from simulator.render.view import camera_view, default_roi, pixel_on_sample
-from tests.mitsuba_helpers import ORACLE_VARIANTS, bsdf_eval_cos, require_variant, rgb
+from tests.mitsuba_helpers import bsdf_eval_cos
+from tests.simulator.render.render_helpers import (
+    ANGLES,
+    CAMERA,
+    DIFFUSE,
+    GEOMETRY,
+    INTENSITY,
+    POINT,
+    half_space_texture,
+    lambert_per_pixel,
+    mirrored_through_sample,
+    pose_at,
+    texture_at_local,
+)
 
 pytestmark = pytest.mark.mitsuba
-
-GEOMETRY = RigGeometry()
-ALBEDO = 0.5
-INTENSITY = 2.0  # W/sr
-DIFFUSE = {"type": "diffuse", "reflectance": rgb([ALBEDO] * 3)}
-CAMERA = CameraSpec(resolution=(64, 64), spp=4)
-POINT = LightSpec(intensity=INTENSITY)
-
-#: (theta_i, phi_i, theta_o, phi_o) in degrees, spanning theta_i 0/30/60, theta_o 0/45/70 and several phi.
-ANGLES = [
-    (0.0, 0.0, 45.0, 180.0),
-    (30.0, 0.0, 0.0, 0.0),
-    (30.0, 40.0, 70.0, 250.0),
-    (60.0, 0.0, 45.0, 90.0),
-    (60.0, 300.0, 70.0, 135.0),
-    (0.0, 0.0, 70.0, 30.0),
-]
-
-
-@pytest.fixture(autouse=True)
-def _no_override(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Tests choose variants themselves, whatever the calling shell exports."""
-    monkeypatch.delenv(mv.ENV_VAR, raising=False)
-
-
-def pose_at(theta_i: float, phi_i: float, theta_o: float, phi_o: float, geometry: RigGeometry = GEOMETRY) -> RigPose:
-    return world_pose(geometry, require(inverse(geometry, theta_i, phi_i, theta_o, phi_o)))
-
-
-def lambert_per_pixel(pose: RigPose, camera: CameraSpec, box: tuple[int, int, int, int]) -> np.ndarray:
-    """albedo/pi * I * cos(theta_i') / d^2 at each pixel centre of the box, from numpy geometry alone."""
-    view = camera_view(GEOMETRY, pose, camera)
-    x0, y0, x1, y1 = box
-    py, px = np.mgrid[y0:y1, x0:x1] + 0.5
-    p, _ = pixel_on_sample(view, pose, px, py)
-    to_light = pose.light_position_m - p
-    d = np.linalg.norm(to_light, axis=-1)
-    cos_i = (to_light @ pose.sample_normal) / d
-    return ALBEDO / np.pi * INTENSITY * cos_i / d**2
-
-
-# ----------------------------------------------------------------------------------------------------------
-# (a) radiance of a Lambertian sample against the point-source law
-
-
-@pytest.mark.parametrize("variant", ORACLE_VARIANTS)
-def test_lambertian_roi_matches_point_source_law(variant: str) -> None:
-    require_variant(variant)
-    for k, angles in enumerate(ANGLES):
-        pose = pose_at(*angles)
-        roi = default_roi(GEOMETRY, pose, POINT, CAMERA)
-        assert (roi[2] - roi[0]) * (roi[3] - roi[1]) >= 16, f"ROI {roi} too small at {angles}"
-        got = roi_radiance(GEOMETRY, pose, DIFFUSE, POINT, CAMERA, variant=variant, seed=k)
-        want = lambert_per_pixel(pose, CAMERA, roi).mean()
-        # A delta light under emitter sampling is exact; only sub-pixel jitter and float32 remain.
-        np.testing.assert_allclose(got, want, rtol=2e-3, err_msg=f"angles {angles}, ROI {roi}")
-        # The model's prediction at the sample centre, L = f_r I cos(theta_i) / d^2, within the ROI's spread.
-        directions = forward(GEOMETRY, require(inverse(GEOMETRY, *angles)))
-        light = PointLight(intensity=INTENSITY, distance=GEOMETRY.light_radius_m)
-        centre = predict_radiance(Lambert(rho_d=ALBEDO), directions.wi, directions.wo, light)
-        np.testing.assert_allclose(got, np.broadcast_to(centre, (3,)), rtol=5e-3, err_msg=f"angles {angles}")
 
 
 def test_default_roi_is_centred_and_on_the_central_quarter_of_the_sample() -> None:
@@ -116,10 +59,6 @@ def test_default_roi_is_centred_and_on_the_central_quarter_of_the_sample() -> No
                 )
 
 
-# ----------------------------------------------------------------------------------------------------------
-# (b) the sample's frame: local x -> tangent, y -> bitangent, z -> normal
-
-
 def test_sample_to_world_maps_local_axes() -> None:
     pose = pose_at(30.0, 40.0, 70.0, 250.0)
     m = sample_to_world(GEOMETRY, pose)
@@ -128,33 +67,6 @@ def test_sample_to_world_maps_local_axes() -> None:
     np.testing.assert_allclose(m[:3, 2], pose.sample_normal)
     np.testing.assert_allclose(m[:3, 3], pose.sample_centre_m)
     assert np.linalg.det(m[:3, :3]) > 0  # right-handed, as Mitsuba's rectangle frame
-
-
-def half_space_texture(axis: int) -> dict[str, Any]:
-    """Diffuse reflectance whose checkerboard colour depends on the sign of local x (axis 0) or y (axis 1) only.
-
-    Scaling the other uv coordinate by 1/2 keeps its frac() below 1/2, so the board splits at u (or v) = 1/2,
-    i.e. at local x (or y) = 0 on Mitsuba's rectangle.
-    """
-    scale = [0.5, 1.0, 1.0] if axis == 1 else [1.0, 0.5, 1.0]
-    return {
-        "type": "diffuse",
-        "reflectance": {
-            "type": "checkerboard",
-            "color0": rgb([0.9, 0.05, 0.05]),
-            "color1": rgb([0.05, 0.05, 0.9]),
-            "to_uv": mis.ScalarTransform4f().scale(scale),
-        },
-    }
-
-
-def texture_at_local(spec: dict[str, Any], x: float, y: float) -> np.ndarray:
-    """The reflectance texture's colour at local (x, y) in [-1, 1]^2, via the rectangle's uv = (x + 1, y + 1) / 2."""
-    with mv.use_variant("scalar_rgb"):
-        texture = mi.load_dict(spec["reflectance"])
-        si = dr.zeros(mi.SurfaceInteraction3f)
-        si.uv = mi.Point2f(0.5 * x + 0.5, 0.5 * y + 0.5)
-        return np.array(texture.eval(si), dtype=np.float64)
 
 
 @pytest.mark.parametrize("angles", [(30.0, 40.0, 45.0, 250.0), (60.0, 300.0, 45.0, 135.0)])
@@ -196,27 +108,6 @@ def test_anisotropic_lobe_follows_the_tangent() -> None:
         np.testing.assert_allclose(got, want, rtol=0.03)
     # Swapping the axes changes the answer tenfold (the lobe is wide along y in the first): the test can tell.
     assert np.all(renders[1] < 0.2 * renders[0])
-
-
-# ----------------------------------------------------------------------------------------------------------
-# (c) crop, (f) where the camera looks
-
-
-@pytest.mark.parametrize("variant", ORACLE_VARIANTS)
-def test_crop_equals_the_same_pixels_of_the_full_frame(variant: str) -> None:
-    require_variant(variant)
-    pose = pose_at(30.0, 40.0, 45.0, 250.0)
-    roi = default_roi(GEOMETRY, pose, POINT, CAMERA)
-    full = render_radiance(build_scene(GEOMETRY, pose, DIFFUSE, POINT, CAMERA), variant)
-    crop = render_radiance(build_scene(GEOMETRY, pose, DIFFUSE, POINT, CAMERA, crop=roi), variant)
-    x0, y0, x1, y1 = roi
-    assert crop.shape == (y1 - y0, x1 - x0, 3)
-    same = full[y0:y1, x0:x1]
-    # Different random streams jitter sample positions differently: per pixel within the radiance gradient.
-    np.testing.assert_allclose(crop, same, rtol=5e-3)
-    np.testing.assert_allclose(crop.mean(axis=(0, 1)), same.mean(axis=(0, 1)), rtol=5e-4)
-    np.testing.assert_allclose(roi_mean(full, roi), same.mean(axis=(0, 1)))
-    np.testing.assert_allclose(roi_mean(crop, roi, (x0, y0)), crop.mean(axis=(0, 1)))
 
 
 def test_camera_looks_at_the_sample_centre() -> None:
@@ -267,11 +158,6 @@ def test_top_down_view_uses_another_up_vector() -> None:
     assert image[int(ya), int(xa), 0] > 1.02 * image[int(yb), int(xb), 0]
 
 
-def mirrored_through_sample(pose: RigPose, point: np.ndarray) -> np.ndarray:
-    n = pose.sample_normal
-    return point - 2.0 * ((point - pose.sample_centre_m) @ n) * n
-
-
 def test_back_side_renders_black() -> None:
     pose = pose_at(30.0, 0.0, 45.0, 180.0)
     behind_camera = replace(pose, camera_position_m=mirrored_through_sample(pose, pose.camera_position_m))
@@ -305,95 +191,6 @@ def test_spot_light_matches_point_inside_its_beam_and_is_dark_outside() -> None:
     outside = np.nan_to_num(off_deg, nan=90.0) > 1.05 * geometry.beam_half_angle_deg
     assert outside.sum() > 100 and np.all(image[outside] == 0.0)
     assert image[~outside].max() > 0
-
-
-# ----------------------------------------------------------------------------------------------------------
-# (d) the cache, (e) variants
-
-
-def test_renderer_cache_hits_and_misses() -> None:
-    renderer = RadianceRenderer(GEOMETRY, POINT, CAMERA, variant="scalar_rgb", maxsize=2)
-    pose = pose_at(30.0, 0.0, 45.0, 180.0)
-    first = renderer.render(pose, DIFFUSE)
-    again = renderer.render(RigPose(*(v + 1e-9 for v in astuple(pose))), dict(DIFFUSE))
-    assert again is first and not first.flags.writeable
-    assert (renderer.stats.hits, renderer.stats.misses) == (1, 1)
-    other_material = {"type": "diffuse", "reflectance": rgb([0.2, 0.2, 0.2])}
-    renderer.render(pose, other_material)
-    renderer.render(pose_at(30.0, 0.0, 45.0, 170.0), DIFFUSE)  # third entry: evicts the least recent
-    assert (renderer.stats.hits, renderer.stats.misses, renderer.stats.size) == (1, 3, 2)
-    renderer.render(pose, other_material)  # still cached
-    renderer.render(pose, DIFFUSE)  # evicted
-    assert (renderer.stats.hits, renderer.stats.misses) == (2, 4)
-    value = renderer.roi_radiance(pose, DIFFUSE, key="lambert 0.5")
-    assert renderer.roi_radiance(pose, DIFFUSE, key="lambert 0.5") is not value  # a fresh mean of a cached crop
-    assert renderer.stats.hits == 3
-    np.testing.assert_allclose(value, roi_radiance(GEOMETRY, pose, DIFFUSE, POINT, CAMERA, variant="scalar_rgb"))
-    renderer.clear()
-    assert renderer.stats == type(renderer.stats)(0, 0, 0, 2, 0)
-
-
-def test_renderer_cache_is_bounded_in_bytes() -> None:
-    frame_bytes = 64 * 64 * 3 * 8
-    renderer = RadianceRenderer(GEOMETRY, POINT, CameraSpec(resolution=(64, 64), spp=1), variant="scalar_rgb",
-                                max_bytes=2 * frame_bytes + 1)
-    poses = [pose_at(30.0, 0.0, 45.0, phi) for phi in (180.0, 170.0, 160.0)]
-    for pose in poses:
-        renderer.render(pose, DIFFUSE)
-    assert (renderer.stats.size, renderer.stats.nbytes) == (2, 2 * frame_bytes)
-    renderer.render(poses[0], DIFFUSE)  # the oldest went first
-    assert renderer.stats.misses == 4
-
-
-def test_renderer_asks_for_evaluated_calls_when_the_material_does(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A material object (``to_dict()``) flagged ``needs_evaluated_calls`` is rendered with symbolic calls off."""
-
-    class PythonPluginLike:
-        needs_evaluated_calls = True
-
-        def to_dict(self) -> dict[str, Any]:
-            return dict(DIFFUSE)
-
-    seen: list[bool] = []
-    original = render_module.render_radiance
-
-    def spy(scene: Any, variant: Any = None, seed: int = 0, *, evaluated_calls: bool = False) -> np.ndarray:
-        seen.append(evaluated_calls)
-        return original(scene, variant, seed, evaluated_calls=evaluated_calls)
-
-    monkeypatch.setattr(render_module, "render_radiance", spy)
-    renderer = RadianceRenderer(GEOMETRY, POINT, CAMERA)
-    pose = pose_at(30.0, 0.0, 45.0, 180.0)
-    flagged = renderer.roi_radiance(pose, PythonPluginLike())
-    plain = renderer.roi_radiance(pose, DIFFUSE, seed=1)
-    assert seen == [True, False]
-    np.testing.assert_allclose(flagged, plain, rtol=1e-3)
-
-
-def test_variant_is_forced_and_the_previous_one_restored() -> None:
-    require_variant("llvm_ad_rgb")
-    scene = build_scene(GEOMETRY, pose_at(30.0, 0.0, 45.0, 180.0), DIFFUSE, POINT, CAMERA)
-    with mv.use_variant("scalar_rgb"):
-        llvm = render_radiance(scene, variant="llvm_ad_rgb")
-        assert mi.variant() == "scalar_rgb"
-        picked = render_radiance(scene)  # picks llvm (the fastest) and restores scalar again
-        assert mi.variant() == "scalar_rgb"
-        forced = render_radiance(scene, variant="scalar_rgb")
-    np.testing.assert_allclose(llvm[24:40, 24:40], forced[24:40, 24:40], rtol=5e-3)
-    np.testing.assert_allclose(picked, llvm)  # same variant, seed and scene: the same image
-    with pytest.raises(mv.VariantUnavailable, match="no_such_variant"):
-        render_radiance(scene, variant="no_such_variant")
-
-
-def test_environment_variable_forces_the_variant(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv(mv.ENV_VAR, "scalar_rgb")
-    renderer = RadianceRenderer(GEOMETRY, POINT, CameraSpec(resolution=(8, 8), spp=1, variant="llvm_ad_rgb"))
-    pose = pose_at(30.0, 0.0, 45.0, 180.0)
-    renderer.render(pose, DIFFUSE)
-    monkeypatch.delenv(mv.ENV_VAR)
-    renderer.render(pose, DIFFUSE)
-    # Different variants are different cache entries (where llvm loads; else both resolve to scalar).
-    assert renderer.stats.misses == (2 if mv.unavailable_reason("llvm_ad_rgb") is None else 1)
 
 
 def test_specs_reject_bad_values() -> None:
