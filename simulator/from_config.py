@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 from acquisition.noise import SensorNoise
+from rig.instrument.alignment import Alignment
 from rig.run.config import ConfigError, RigConfig, material_from
+from rig.run.config_schema import Misalignment
 from simulator.render.spec import CameraSpec, LightSpec
 from simulator.rig import SimRigSpec
 
@@ -19,11 +23,17 @@ def spec_from(rig: RigConfig) -> SimRigSpec:
     except ValueError as exc:
         raise ConfigError(f"{rig.path}: camera.noise: {exc}") from None
     sim = f.simulation
+    mis = sim.misalignment
     albedo = f.reference.albedo
+    try:
+        light = LightSpec(kind=sim.light_kind, intensity=sim.light_intensity_w_sr, size_m=mis.light_size_mm * 1e-3,
+                          falloff=mis.beam_falloff)  # fmt: skip
+    except ValueError as exc:
+        raise ConfigError(f"{rig.path}: simulation.misalignment: {exc}") from None
     return SimRigSpec(
         geometry=rig.geometry,
         material=material_from(rig),
-        light=LightSpec(kind=sim.light_kind, intensity=sim.light_intensity_w_sr),
+        light=light,
         camera=CameraSpec(resolution=cam.resolution, roi=cam.roi, spp=cam.spp, variant=cam.variant),
         noise=noise,
         axes=rig.axes,
@@ -32,4 +42,13 @@ def spec_from(rig: RigConfig) -> SimRigSpec:
         time_scale=sim.time_scale,
         seed=sim.seed,
         reference_albedo=albedo if isinstance(albedo, float) else (albedo[0], albedo[1], albedo[2]),
+        misalignment=alignment_from(mis),
+        stray_light_counts_s=mis.stray_light,
+        lamp_drift=mis.lamp_drift,
+        lamp_warmup_s=mis.lamp_warmup_s,
     )
+
+
+def alignment_from(table: Misalignment) -> Alignment:
+    """The geometric part of ``[simulation.misalignment]`` as an Alignment (the simulated rig's truth)."""
+    return Alignment(**table.model_dump(include={f.name for f in dataclasses.fields(Alignment)}))

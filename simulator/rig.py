@@ -13,6 +13,7 @@ faster than real time, for external clients. Only one simulated rig runs per pro
 
 from __future__ import annotations
 
+import math
 import threading
 from dataclasses import dataclass, field
 
@@ -23,6 +24,7 @@ from acquisition.noise import SensorNoise
 from model.base import Model
 from model.lambert import Lambert
 from model.mitsuba.materials import MitsubaMaterial, to_mitsuba
+from rig.instrument.alignment import Alignment, aligned_pose
 from rig.instrument.axis import Axis
 from rig.instrument.clock import Clock, ManualClock, ScaledClock
 from rig.instrument.geometry import RigGeometry
@@ -72,6 +74,14 @@ class SimRigSpec:
         Albedo of the Lambertian reference tile that ``rig.run.reference`` swaps in for the sample.
     light_drift_per_s:
         Relative change of the light's intensity per second of rig time (0: a stable lamp), for drift tests.
+    misalignment:
+        The rig as it is built (joint zeros, the sample's wedge and offset): frames are rendered from the
+        true pose (``rig.instrument.alignment.aligned_pose``), while the ROI is the one the controller
+        would pick for the drawn pose. The controller is not told (it finds them by calibration).
+    stray_light_counts_s:
+        Ambient light reaching every pixel, in counts per second at gain 1 (not in dark frames).
+    lamp_drift, lamp_warmup_s:
+        A warming lamp: intensity times 1 + lamp_drift (1 - exp(-t / lamp_warmup_s)) at rig time t (s).
     """
 
     geometry: RigGeometry = field(default_factory=RigGeometry)
@@ -87,6 +97,10 @@ class SimRigSpec:
     seed: int = 0
     reference_albedo: float | tuple[float, float, float] = 0.99
     light_drift_per_s: float = 0.0
+    misalignment: Alignment = field(default_factory=Alignment)
+    stray_light_counts_s: float = 0.0
+    lamp_drift: float = 0.0
+    lamp_warmup_s: float = 600.0
 
     def resolved_axes(self) -> tuple[Axis, ...]:
         """The axes, defaulted from the geometry, checked to cover every joint of the layout."""
@@ -133,6 +147,7 @@ class SimulatedRig:
             self.camera = SimulatedCamera(
                 self._radiance, noise=self.spec.noise, optics=self.spec.optics, clock=self.clock,
                 seed=self.spec.seed, fixed_pattern_dn=self.spec.fixed_pattern_dn, state_key=self._state_key,
+                stray_counts_per_s=self.spec.stray_light_counts_s,
                 camera_id=f"gonio simulated camera ({self.spec.material.__class__.__name__}, {self.material.plugin})",
             )  # fmt: skip
             _active.append(self)
@@ -199,14 +214,21 @@ class SimulatedRig:
         """Radiance (W/(m^2 sr)) the camera sees now (the ROI, or the whole frame), from the servos' physical pose."""
         return self._radiance(full_frame)
 
+    def lamp_factor(self) -> float:
+        """The lamp's intensity now relative to its cold intensity (drift and warm-up at rig time)."""
+        t = self.clock.now()
+        warm = self.spec.lamp_drift * -math.expm1(-t / self.spec.lamp_warmup_s) if self.spec.lamp_drift else 0.0
+        return (1.0 + self.spec.light_drift_per_s * t) * (1.0 + warm)
+
     def _radiance(self, full_frame: bool = False) -> npt.NDArray[np.float64]:
-        pose = world_pose(self.spec.geometry, self.joints_now())
-        crop = None if full_frame else self.renderer.roi(pose)
+        joints = self.joints_now()
+        true = aligned_pose(self.spec.geometry, joints, self.spec.misalignment)
+        # The controller picks its ROI for the rig as drawn; the scene is what the rig really is.
+        crop = None if full_frame else self.renderer.roi(world_pose(self.spec.geometry, joints))
         self.renders += 1
-        image = self.renderer.render(pose, self._shown, crop=crop, key=repr(self._showing))
-        if self.spec.light_drift_per_s:
-            return np.asarray(image, dtype=np.float64) * (1.0 + self.spec.light_drift_per_s * self.clock.now())
-        return np.asarray(image, dtype=np.float64)
+        image = self.renderer.render(true, self._shown, crop=crop, key=repr(self._showing))
+        factor = self.lamp_factor()
+        return np.asarray(image, dtype=np.float64) * factor if factor != 1.0 else np.asarray(image, dtype=np.float64)
 
 
 class SimulatedReference:

@@ -127,6 +127,7 @@ def aligned_pose(geometry: RigGeometry, joints: Joints, alignment: Alignment) ->
         sample_bitangent=local[..., :, 1],
         light_position_m=geometry.light_radius_m * np.broadcast_to(_arm(light), (*shape, 3)),
         camera_position_m=geometry.camera_radius_m * np.broadcast_to(_arm(camera), (*shape, 3)),
+        aim_m=np.zeros((*shape, 3)),
     )
 
 

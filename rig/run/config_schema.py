@@ -5,7 +5,8 @@ numbers carry their bounds here, where they are defined. ``rig.run.config`` load
 and turns pydantic's errors into messages that name the file, the key, the value and what was expected.
 
 Rig file tables: ``[geometry]`` (and ``[geometry.limits]``), ``[link]``, ``[axes.<joint>]``, ``[camera]``
-(``[camera.noise]``), ``[reference]``, ``[simulation]`` (``[simulation.material]``). Sweep file tables:
+(``[camera.noise]``), ``[reference]``, ``[simulation]`` (``[simulation.material]``,
+``[simulation.misalignment]``). Sweep file tables:
 ``[sweep]`` and ``[capture]``. See examples/*.toml for annotated files.
 """
 
@@ -206,10 +207,42 @@ class Material(Strict):
         return {k: tuple(v) if isinstance(v, list) else v for k, v in extra.items()}
 
 
+ZeroOffset = Annotated[float, Field(ge=-45, le=45, allow_inf_nan=False)]
+OffsetMm = Annotated[float, Field(ge=-50, le=50, allow_inf_nan=False)]
+
+
+class Misalignment(Strict):
+    """``[simulation.misalignment]``: how the simulated rig differs from the drawn one (hidden from the controller).
+
+    Joint zeros (deg): a joint that reports angle a stands at a - zero. The sample's normal is tipped by
+    ``sample_tilt_deg`` towards the stage-frame azimuth ``sample_tilt_azimuth_deg``; its centre sits
+    ``sample_offset_mm`` (x tangent, y bitangent, z normal of the stage) off the arms' axis. The light is a
+    disk of ``light_size_mm`` diameter (0: a point) whose irradiance falls by the fraction ``beam_falloff``
+    at the edge of the lit spot; ``stray_light`` adds ambient counts per second to every pixel; the lamp
+    warms up by the fraction ``lamp_drift`` with time constant ``lamp_warmup_s`` of rig time.
+    See ``rig.instrument.alignment`` for the exact definitions.
+    """
+
+    light_zero_deg: ZeroOffset = 0.0
+    camera_zero_deg: ZeroOffset = 0.0
+    tilt_zero_deg: ZeroOffset = 0.0
+    roll_zero_deg: ZeroOffset = 0.0
+    yaw_zero_deg: ZeroOffset = 0.0
+    sample_tilt_deg: Annotated[float, Field(ge=0, le=20, allow_inf_nan=False)] = 0.0
+    sample_tilt_azimuth_deg: Finite = 0.0
+    sample_offset_mm: tuple[OffsetMm, OffsetMm, OffsetMm] = (0.0, 0.0, 0.0)
+    light_size_mm: Annotated[float, Field(ge=0, le=200, allow_inf_nan=False)] = 0.0
+    beam_falloff: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0
+    stray_light: NonNeg = 0.0
+    lamp_drift: Annotated[float, Field(gt=-0.9, lt=10, allow_inf_nan=False)] = 0.0
+    lamp_warmup_s: Pos = 600.0
+
+
 class Simulation(Strict):
-    """``[simulation]``: what the simulated rig stands in for: material, light (W/sr), time, seed."""
+    """``[simulation]``: what the simulated rig stands in for: material, light (W/sr), time, seed, imperfections."""
 
     material: Material = Material()
+    misalignment: Misalignment = Misalignment()
     light_intensity_w_sr: Pos = 1.0
     light_kind: Literal["point", "spot"] = "point"
     time_scale: Pos | None = None

@@ -113,6 +113,7 @@ class SimulatedCamera:
         dng_dir: Path | None = None,
         camera_id: str = "gonio simulated camera",
         state_key: Callable[[], Hashable] | None = None,
+        stray_counts_per_s: float = 0.0,
     ) -> None:
         if not 0 < min_exposure_s < max_exposure_s:
             raise ValueError(
@@ -120,6 +121,9 @@ class SimulatedCamera:
             )
         if fixed_pattern_dn < 0:
             raise ValueError(f"fixed_pattern_dn = {fixed_pattern_dn!r}: expected an RMS >= 0 counts")
+        if not (math.isfinite(stray_counts_per_s) and stray_counts_per_s >= 0):
+            raise ValueError(f"stray_counts_per_s = {stray_counts_per_s!r}: expected counts per second >= 0")
+        self.stray_counts_per_s = float(stray_counts_per_s)
         if dng_dir is not None and kind != "raw":
             raise ValueError(f"dng_dir needs kind='raw' (DNG holds a CFA mosaic), got kind={kind!r}")
         self._source = source
@@ -176,7 +180,8 @@ class SimulatedCamera:
         self._require_open()
         with self._lock:
             rate = self.rate_counts_per_s()
-            return self._expose(rate, dark=False)
+            # Ambient light reaches the sensor whenever the shutter is open, whatever the lamp does.
+            return self._expose(rate + self.stray_counts_per_s if self.stray_counts_per_s else rate, dark=False)
 
     def capture_dark(self) -> Frame:
         """One frame with the shutter closed at the current settings (black, dark current, offsets, noise)."""

@@ -77,7 +77,7 @@ def _up_for(forward: FloatArray) -> FloatArray:
 def camera_view(geometry: RigGeometry, pose: RigPose, camera: CameraSpec) -> CameraView:
     """The camera of ``build_scene`` as a numpy pinhole model: where world points land in the image."""
     origin = _vec3("camera_position_m", pose.camera_position_m)
-    target = _vec3("sample_centre_m", pose.sample_centre_m)
+    target = _vec3("aim_m", pose.aim())
     forward = _unit(target - origin)
     left = _unit(np.cross(_up_for(forward), forward))
     up = np.cross(forward, left)
