@@ -35,10 +35,11 @@ import mitsuba.scalar_rgb as mis  # variant-free scalar types; the transforms lo
 import numpy as np
 import numpy.typing as npt
 
+from rig.instrument.camera_model import up_for
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics_types import RigPose
 from simulator.render.spec import Box, BSDFLike, CameraSpec, LightSpec, bsdf_dict, check_box
-from simulator.render.view import _unit, _up_for, _vec3, camera_view
+from simulator.render.view import _unit, _vec3, camera_view
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -64,7 +65,7 @@ def _emitter(geometry: RigGeometry, pose: RigPose, light: LightSpec) -> dict[str
     position = _vec3("light_position_m", pose.light_position_m)
     intensity = {"type": "rgb", "value": list(light.rgb())}
     forward = _unit(_vec3("aim_m", pose.aim()) - position)
-    left = _unit(np.cross(_up_for(forward), forward))
+    left = _unit(np.cross(up_for(forward), forward))
     if light.kind == "point" and light.size_m > 0:
         # A Lambertian disk facing the aim point with the point light's on-axis intensity: I = L pi r^2.
         r = 0.5 * light.size_m
