@@ -14,13 +14,17 @@ faster than real time, for external clients. Only one simulated rig runs per pro
 from __future__ import annotations
 
 import math
+import tempfile
 import threading
-from collections.abc import Mapping
+from collections.abc import Hashable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from acquisition.board import ChArUcoBoard
 from acquisition.noise import SensorNoise
 from model.base import Model
 from model.lambert import Lambert
@@ -130,9 +134,10 @@ class SimulatedRig:
         self.camera: SimulatedCamera | None = None
         self.renders = 0
         self.reference = SimulatedReference(self)
-        self._showing: Model = self.spec.material
+        self.board = SimulatedBoard(self)
+        self._showing: Hashable = self.spec.material
         self._reading: int | None = None
-        self._shown: MitsubaMaterial = self.material
+        self._shown: MitsubaMaterial | dict[str, Any] = self.material
         self._reference_material = to_mitsuba(Lambert(self.spec.reference_albedo))
 
     def start(self) -> SimulatedRig:
@@ -210,6 +215,11 @@ class SimulatedRig:
         else:
             self._showing, self._shown = self.spec.material, self.material
 
+    def show_material(self, key: Hashable, material: dict[str, Any]) -> None:
+        """Put any Mitsuba material in view in place of the sample (``key`` names it for caches and noise)."""
+        self._reading = None
+        self._showing, self._shown = key, material
+
     def _state_key(self) -> tuple[object, ...]:
         assert self.bus is not None
         ticks = tuple(round(self.bus.servo(int(a.address)).physical_position_ticks(), 3) for a in self.axes)
@@ -232,9 +242,57 @@ class SimulatedRig:
         # The controller picks its ROI for the rig as drawn; the scene is what the rig really is.
         crop = None if full_frame else self.renderer.roi(world_pose(self.spec.geometry, joints))
         self.renders += 1
-        image = self.renderer.render(true, self._shown, crop=crop, key=repr(self._showing))
+        # The render's own sampling noise is part of each rig's noise: seeded like the sensor's.
+        image = self.renderer.render(true, self._shown, crop=crop, key=repr(self._showing), seed=self.spec.seed)
         factor = self.lamp_factor()
         return np.asarray(image, dtype=np.float64) * factor if factor != 1.0 else np.asarray(image, dtype=np.float64)
+
+
+class SimulatedBoard:
+    """The simulated rig's calibration board: a ChArUco pattern under a glossy coat; satisfies BoardTarget."""
+
+    def __init__(self, rig: SimulatedRig) -> None:
+        self._rig = rig
+        self._dir: tempfile.TemporaryDirectory[str] | None = None
+
+    @property
+    def description(self) -> str:
+        """The board's material."""
+        return "simulated ChArUco board under a GGX-rough clear coat (roughplastic)"
+
+    def present_board(self, board: ChArUcoBoard, alpha: float) -> None:
+        """Swap the board in for the sample (textured diffuse print under a coat of GGX ``alpha``, ior 1.5)."""
+        if self._dir is None:
+            self._dir = tempfile.TemporaryDirectory(prefix="gonio-board-")
+        path = Path(self._dir.name) / f"board-{abs(hash((board, alpha)))}.png"
+        if not path.exists():
+            _write_board_texture(path, board, self._rig.spec.geometry)
+        material = {
+            "type": "roughplastic", "distribution": "ggx", "alpha": float(alpha), "int_ior": 1.5,
+            "diffuse_reflectance": {"type": "bitmap", "filename": str(path), "raw": True, "filter_type": "bilinear"},
+        }  # fmt: skip
+        self._rig.show_material(("board", board, alpha), material)
+
+    def withdraw_board(self) -> None:
+        """Put the sample back."""
+        self._rig.show(False)
+
+
+def _write_board_texture(path: Path, board: ChArUcoBoard, geometry: RigGeometry, px_per_mm: float = 20.0) -> None:
+    """The sample's face as a texture: the board centred on it, white around, printed black at 4 % reflectance."""
+    import cv2
+
+    printed = board.image(px_per_mm)
+    w, h = round(geometry.sample_width_m * 1e3 * px_per_mm), round(geometry.sample_height_m * 1e3 * px_per_mm)
+    if printed.shape[0] > min(w, h):
+        raise SimulatedRigError(f"the {board.width_mm:g} mm board does not fit the {geometry.sample_width_m * 1e3:g} x "
+                                f"{geometry.sample_height_m * 1e3:g} mm sample")  # fmt: skip
+    face = np.full((h, w), 255, dtype=np.uint8)
+    y0, x0 = (h - printed.shape[0]) // 2, (w - printed.shape[1]) // 2
+    face[y0 : y0 + printed.shape[0], x0 : x0 + printed.shape[1]] = printed
+    # Mitsuba's rectangle maps texture rows to its local +y: flipped, the print reads upright from the front.
+    ink = (10 + face.astype(np.float64)[::-1] * (217 - 10) / 255).astype(np.uint8)
+    cv2.imwrite(str(path), ink)
 
 
 class SimulatedReference:

@@ -30,7 +30,7 @@ from rig.instrument.clock import Clock
 from rig.instrument.links.base import MotionLink
 from rig.run import registry
 from rig.run.config import RigConfig
-from rig.run.reference import ReferenceTarget
+from rig.run.reference import BoardTarget, ReferenceTarget
 
 #: Joint angles in degrees a simulated rig starts at (a resumed run's last pose), by joint name.
 StartPose = Mapping[str, float]
@@ -44,6 +44,8 @@ class Instruments:
     camera: Camera
     clock: Clock
     target: ReferenceTarget | None
+    #: Mounts the calibration board for ``gonio calibrate geometry`` (None: the backend cannot).
+    board: BoardTarget | None = None
 
 
 class OpenInstruments(Protocol):

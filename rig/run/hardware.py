@@ -18,7 +18,7 @@ from rig.instrument.links.dynamixel import DynamixelOptions
 from rig.run import registry
 from rig.run.backends import Instruments, RigBackend, StartPose
 from rig.run.config import RigConfig
-from rig.run.reference import ManualReference, ReferenceTarget
+from rig.run.reference import ManualBoard, ManualReference, ReferenceTarget
 
 
 def dynamixel_options(rig: RigConfig) -> DynamixelOptions:
@@ -58,7 +58,7 @@ def _instruments(rig: RigConfig, link: MotionLink, clock: Clock) -> Iterator[Ins
     camera = open_camera(rig, clock)
     manual: ReferenceTarget | None = ManualReference() if rig.file.reference.kind == "manual" else None
     try:
-        yield Instruments(link, camera, clock, manual)
+        yield Instruments(link, camera, clock, manual, ManualBoard())
     finally:
         camera.close()
 

@@ -34,7 +34,9 @@ from simulator.camera.sensor import ToneCurve, as_generator, capture, dark_frame
 PLANCK_J_S = 6.62607015e-34
 LIGHT_M_S = 299_792_458.0
 
-RadianceSource = Callable[[], npt.NDArray[np.float64]]
+#: The radiance the camera sees now, (H, W, 3) in W/(m^2 sr); called with ``full_frame=True`` when the
+#: camera is set to deliver whole frames (a source that only renders an ROI renders everything then).
+RadianceSource = Callable[..., npt.NDArray[np.float64]]
 """Returns the radiance (W/(m^2 sr)) the camera sees now, (H, W, 3)."""
 
 
@@ -124,6 +126,8 @@ class SimulatedCamera:
         if not (math.isfinite(stray_counts_per_s) and stray_counts_per_s >= 0):
             raise ValueError(f"stray_counts_per_s = {stray_counts_per_s!r}: expected counts per second >= 0")
         self.stray_counts_per_s = float(stray_counts_per_s)
+        #: Deliver whole frames (geometry calibration) instead of the ROI a run reads.
+        self.full_frame = False
         if dng_dir is not None and kind != "raw":
             raise ValueError(f"dng_dir needs kind='raw' (DNG holds a CFA mosaic), got kind={kind!r}")
         self._source = source
@@ -170,7 +174,7 @@ class SimulatedCamera:
 
     def rate_counts_per_s(self) -> npt.NDArray[np.float64]:
         """The scene as the sensor sees it now: counts per second at gain 1, (H, W, 3)."""
-        radiance = np.asarray(self._source(), dtype=np.float64)
+        radiance = np.asarray(self._source(full_frame=True) if self.full_frame else self._source(), dtype=np.float64)
         if radiance.ndim != 3 or radiance.shape[2] != 3:
             raise ValueError(f"{self.identity}: radiance source gave shape {radiance.shape}, expected (H, W, 3)")
         return radiance * self.optics.counts_per_radiance(self.noise)
