@@ -16,13 +16,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from acquisition.cfa import colour_planes, counts_above_black, reduce_hdr_roi
 from acquisition.exposure.metering import meter
 from acquisition.exposure.plan import plan_exposure
 from acquisition.exposure.spec import CameraTiming, RoiLevel
 from acquisition.frame import Camera, Frame
 from acquisition.hdr.merge import HdrImage, merge_linear
 from acquisition.noise import SensorNoise
-from acquisition.roi import RoiError, RoiReading, reduce_roi
+from acquisition.roi import RoiError, RoiReading
 
 Box = tuple[int, int, int, int]
 
@@ -92,14 +93,6 @@ class Reading:
     notes: tuple[str, ...]
 
 
-def _counts_above_black(frame: Frame) -> npt.NDArray[np.float64]:
-    black = np.asarray(frame.black_level, dtype=np.float64)
-    data = np.asarray(frame.data, dtype=np.float64)
-    if black.ndim == 1 and data.ndim == 3 and black.size == data.shape[-1]:
-        return data - black
-    return data - float(np.max(black))
-
-
 def _crop(a: npt.NDArray[Any], roi: Box | None) -> npt.NDArray[Any]:
     if roi is None:
         return a
@@ -126,8 +119,12 @@ def _darks(camera: Camera, exposures: tuple[float, ...], n: int) -> tuple[dict[f
 
 
 def level_of(hdr: HdrImage, roi: Box | None) -> Level:
-    """The ROI's level (counts/s) from a merged image: peak, mean and 1st-percentile pixel over channels."""
-    rad = _crop(hdr.radiance, roi)
+    """The ROI's level (counts/s) from a merged image: peak, mean and 1st-percentile pixel over channels.
+
+    A raw mosaic's ROI is read per colour (binned 2x2 cells), so the next plan is made per colour too.
+    """
+    h, w = hdr.radiance.shape[:2]
+    rad = colour_planes(hdr, roi if roi is not None else (0, 0, w, h))
     finite = rad[np.isfinite(rad)]
     n = int(rad.shape[0] * rad.shape[1])
     if finite.size == 0:
@@ -162,7 +159,7 @@ def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | No
             notes = ("the bracket planned from the previous point clipped: metered afresh",)
 
     def take_roi(t: float) -> npt.NDArray[np.float64]:
-        return _crop(_counts_above_black(_shoot(camera, t)), settings.roi)
+        return counts_above_black(_shoot(camera, t), settings.roi)
 
     metered = meter(take_roi, settings.noise, settings.target_snr, settings.timing,
                     start_exposure_s=settings.first_exposure_s, dark_frames=settings.dark_frames,
@@ -239,5 +236,5 @@ def _merge(
     hdr = merge_linear(frames, settings.noise, darks=darks or None)
     h, w = hdr.radiance.shape[:2]
     roi = settings.roi if settings.roi is not None else (0, 0, w, h)
-    reading = reduce_roi(hdr.radiance, hdr.variance, roi, flags=hdr.saturated)
+    reading = reduce_hdr_roi(hdr, roi)
     return Reading(reading, hdr, applied, dark_taken, test, level_of(hdr, roi), notes)
