@@ -18,6 +18,7 @@ from rig.instrument.links.dynamixel import DynamixelOptions
 from rig.run import registry
 from rig.run.backends import Instruments, RigBackend
 from rig.run.config import RigConfig
+from rig.run.flat_source import ManualFlatSource
 from rig.run.reference import ManualReference, ReferenceTarget
 
 
@@ -58,7 +59,7 @@ def _instruments(rig: RigConfig, link: MotionLink, clock: Clock) -> Iterator[Ins
     camera = open_camera(rig, clock)
     manual: ReferenceTarget | None = ManualReference() if rig.file.reference.kind == "manual" else None
     try:
-        yield Instruments(link, camera, clock, manual)
+        yield Instruments(link, camera, clock, manual, ManualFlatSource())
     finally:
         camera.close()
 

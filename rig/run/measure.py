@@ -20,6 +20,7 @@ from acquisition.cfa import colour_planes, counts_above_black, reduce_hdr_roi
 from acquisition.exposure.metering import meter
 from acquisition.exposure.plan import plan_exposure
 from acquisition.exposure.spec import CameraTiming, RoiLevel
+from acquisition.flatfield import FlatField
 from acquisition.frame import Camera, Frame
 from acquisition.hdr.merge import HdrImage, merge_linear
 from acquisition.noise import SensorNoise
@@ -40,6 +41,8 @@ class CaptureSettings:
     dark_frames: int = 1
     first_exposure_s: float = 0.01
     roi: Box | None = None
+    #: Divides every merged image (vignetting and PRNU) where the rig file names one (``[camera] flat_field``).
+    flat_field: FlatField | None = None
 
 
 #: A reading whose dimmest channel reaches less than this fraction of the SNR goal is topped up.
@@ -204,7 +207,8 @@ def _roi_check(settings: CaptureSettings, frames: list[Frame]) -> Reading:
         x0, y0, x1, y1 = settings.roi
         cx, cy = x0 - x0 % 2, y0 - y0 % 2
         box = (cx, cy, x1 + x1 % 2, y1 + y1 % 2)
-        frames = [dataclasses.replace(f, data=_crop(f.data, box)) for f in frames]
+        frames = [dataclasses.replace(f, data=_crop(f.data, box), origin_xy=(f.origin_xy[0] + cx, f.origin_xy[1] + cy))
+                  for f in frames]  # fmt: skip
         check = dataclasses.replace(check, roi=(x0 - cx, y0 - cy, x1 - cx, y1 - cy))
     return _merge(None, check, frames, (), ())
 
@@ -234,6 +238,8 @@ def _merge(
     applied = tuple(f.exposure_s for f in frames)
     darks, dark_taken = _darks(camera, applied, settings.dark_frames) if camera is not None else ({}, ())
     hdr = merge_linear(frames, settings.noise, darks=darks or None)
+    if settings.flat_field is not None:
+        hdr = settings.flat_field.apply(hdr, frames[0].origin_xy)
     h, w = hdr.radiance.shape[:2]
     roi = settings.roi if settings.roi is not None else (0, 0, w, h)
     reading = reduce_hdr_roi(hdr, roi)

@@ -16,9 +16,9 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.exposure.spec import CameraTiming
-from acquisition.noise import SensorNoise
 from rig.instrument.kinematics import inverse, require
 from rig.run.backends import Instruments, backend
+from rig.run.calibrate import camera_flat_field, camera_noise
 from rig.run.config import RigConfig, SweepConfig, parse, rig_config, sweep_config
 from rig.run.config_schema import RigFile, SweepFile
 from rig.run.measure import CaptureSettings
@@ -31,7 +31,7 @@ def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
     """The capture settings of a run from the rig's camera and the sweep's [capture] table."""
     cam, cap = rig.file.camera, sweep.file.capture
     return CaptureSettings(
-        noise=SensorNoise(**cam.noise.model_dump()),
+        noise=camera_noise(rig),
         timing=CameraTiming(cam.min_exposure_s, cam.max_exposure_s, overhead_s=cam.overhead_s),
         target_snr=cap.target_snr,
         exposures_s=tuple(cap.exposures_s) if cap.exposures_s else None,
@@ -40,6 +40,7 @@ def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
         first_exposure_s=cap.first_exposure_s,
         # The simulated camera renders only the ROI, so what it delivers is the ROI already.
         roi=cam.roi if cam.backend != "simulated" else None,
+        flat_field=camera_flat_field(rig),
     )
 
 
