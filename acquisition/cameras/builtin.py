@@ -64,7 +64,7 @@ def _gphoto2(settings: Mapping[str, Any], clock: ClockLike) -> Camera:
 def _genicam(settings: Mapping[str, Any], clock: ClockLike) -> Camera:
     from acquisition.cameras.genicam import GenICamCamera
 
-    options = _given(settings, "serial_number", "index", "discard_frames", "timeout_s", "pixel_format")
+    options = _given(settings, "serial_number", "index", "discard_frames", "timeout_s", "pixel_format", "strict")
     return GenICamCamera(settings["cti_file"], clock=clock, **options)
 
 
@@ -79,5 +79,6 @@ OPENCV = CameraBackend(_opencv, "a UVC camera, video file or image sequence thro
 GPHOTO2 = CameraBackend(_gphoto2, "a still camera through libgphoto2 (pip install 'gonio[gphoto2]')",
                         keys=("port", "model", "download_dir", "keep_on_camera"))  # fmt: skip
 GENICAM = CameraBackend(_genicam, "a GenICam camera through a GenTL producer (pip install 'gonio[genicam]')",
-                        keys=("cti_file", "serial_number", "index", "discard_frames", "timeout_s", "pixel_format"),
+                        keys=("cti_file", "serial_number", "index", "discard_frames", "timeout_s", "pixel_format",
+                              "strict"),
                         required=("cti_file",))  # fmt: skip
