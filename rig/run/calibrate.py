@@ -80,8 +80,8 @@ def _mean_above_black(frame: Frame) -> float:
     return float(np.mean(np.asarray(frame.data, dtype=np.float64)) - black)
 
 
-def saturation_exposure(camera: Camera, timing: CameraTiming, start_s: float) -> float:
-    """The exposure (s) at which the lit sensor's mean stops rising, from frames at doubling exposures."""
+def saturation_exposure(camera: Camera, timing: CameraTiming, start_s: float) -> tuple[float, int]:
+    """The exposure (s) at which the lit sensor's mean stops rising, from frames at doubling exposures; frames taken."""
     t = min(max(start_s, timing.min_exposure_s), timing.max_exposure_s)
     history: list[tuple[float, float]] = []
     while True:
@@ -93,7 +93,7 @@ def saturation_exposure(camera: Camera, timing: CameraTiming, start_s: float) ->
                 # Past the knee: the last rising frame's rate, extended to the plateau, gives t_sat.
                 rising = [(ta, ma) for ta, ma in history[:-1] if ma > 0]
                 ta, ma = rising[-1] if rising else (t0, m0)
-                return float(min(ta * m1 / max(ma, 1e-9), timing.max_exposure_s))
+                return float(min(ta * m1 / max(ma, 1e-9), timing.max_exposure_s)), len(history)
         if applied >= timing.max_exposure_s:
             raise ValueError(f"the sensor does not saturate within the longest exposure ({timing.max_exposure_s:g} s): "
                              "brighten the flat-field source")  # fmt: skip
@@ -117,7 +117,7 @@ def calibrate_camera(
     flat_series: list[Frame] = []
     try:
         source.illuminate()
-        t_sat = saturation_exposure(camera, timing, cfg.first_exposure_s)
+        t_sat, frames = saturation_exposure(camera, timing, cfg.first_exposure_s)
         say(f"saturation at about {t_sat:.4g} s")
         top = min(cfg.over * t_sat, timing.max_exposure_s)
         for i, t in enumerate(np.linspace(top / cfg.steps, top, cfg.steps)):
