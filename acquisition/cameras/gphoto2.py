@@ -119,7 +119,10 @@ class GPhoto2Camera:
         if port is not None:
             ports = gp.PortInfoList()
             ports.load()
-            index = ports.lookup_path(port)
+            try:
+                index = ports.lookup_path(port)
+            except gp.GPhoto2Error:
+                index = -1
             if index < 0:
                 raise CameraError(f"gphoto2: no port {port!r} (libgphoto2 knows "
                                   f"{', '.join(ports[i].get_path() for i in range(len(ports)))})")  # fmt: skip
@@ -127,7 +130,10 @@ class GPhoto2Camera:
         if model is not None:
             abilities = gp.CameraAbilitiesList()
             abilities.load()
-            index = abilities.lookup_model(model)
+            try:
+                index = abilities.lookup_model(model)
+            except gp.GPhoto2Error:
+                index = -1
             if index < 0:
                 raise CameraError(f"gphoto2: libgphoto2 has no camera model {model!r} (as `gphoto2 --list-cameras` "
                                   "names them)")  # fmt: skip
