@@ -30,10 +30,11 @@ from rig.instrument.clock import Clock
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints, forward
 from rig.instrument.links.base import LinkError, MotionLink, MoveTimeout
+from rig.run.journal import check_records
 from rig.run.measure import CaptureSettings, Level, Reading, take_reading
 from rig.run.plan import Plan, PlannedPoint
 from rig.run.reference import ReferenceTarget
-from rig.run.store import RunStore
+from rig.run.store import JOURNAL, RunStore
 from rig.run.table import build_rows
 
 TorquePolicy = Literal["torque_off", "hold"]
@@ -125,6 +126,7 @@ class Runner:
         """Measure every point not yet in the journal, then write the table; stops safely on any fault."""
         started = self.clock.now()
         records = self.store.records()
+        check_records(records, self.store.path / JOURNAL)
         done = {r["index"] for r in records if r["kind"] == "point"}
         ref_done = {r["slot"]: r for r in records if r["kind"] == "reference"}
         points = [r for r in records if r["kind"] == "point"]
@@ -268,7 +270,9 @@ class Runner:
 
     def _finish(self) -> str:
         ref = self.reference
-        rows = build_rows(self.store.records(), self.geometry.joint_names,
+        records = self.store.records()
+        check_records(records, self.store.path / JOURNAL)
+        rows = build_rows(records, self.geometry.joint_names,
                           albedo=ref.albedo if ref else None, albedo_std_error=ref.albedo_std_error if ref else 0.0,
                           include_cosine=self.options.include_cosine)  # fmt: skip
         path = self.store.write_table(rows)

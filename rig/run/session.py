@@ -21,10 +21,11 @@ from rig.instrument.kinematics import inverse, require
 from rig.run.backends import Instruments, backend
 from rig.run.config import RigConfig, SweepConfig, parse, rig_config, sweep_config
 from rig.run.config_schema import RigFile, SweepFile
+from rig.run.journal import check_records
 from rig.run.measure import CaptureSettings
 from rig.run.plan import Plan, plan_sweep
 from rig.run.runner import ReferenceSettings, Runner, RunOptions, RunSummary
-from rig.run.store import RunStore
+from rig.run.store import JOURNAL, RunStore
 
 
 def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
@@ -134,6 +135,7 @@ def resume_run(path: str | Path, *, progress: bool = True) -> RunSummary:
         previous = getattr(store, "previous_status", None) or store.status()
         if previous.get("state") == "finished":
             raise ValueError(f"{path}: the run is finished ({store.path / 'samples.csv'}); nothing to resume")
+        check_records(store.records(), store.path / JOURNAL)  # before anything is opened or moved
         rig, sweep = configs_of(store)
         plan = make_plan(rig, sweep)
         if len(plan.points) != store.manifest["points"]:
