@@ -258,3 +258,15 @@ def test_reference_readings_of_a_run_are_independent_draws(tmp_path: Path) -> No
     # Scatter between readings as their own errors predict (chi2 with (n - 1) x 3 degrees of freedom).
     chi2, dof = float(np.sum(((reading - reading.mean(axis=0)) / se) ** 2)), 3 * (len(later) - 1)
     assert 0.25 * dof < chi2 < 2.5 * dof, (chi2, dof)
+
+
+def test_a_pulled_cable_is_a_hardware_stop_with_the_journal_intact(tmp_path: Path) -> None:
+    def unplug(sim: SimulatedRig) -> dict[int, Callable[[], None]]:
+        assert sim.bus is not None
+        return {3: sim.bus.close}  # the device end of the line goes: the port answers EIO
+
+    store, _, (outcome, _) = _run(tmp_path, sim_rig(), _sweep(), unplug)
+    assert isinstance(outcome, RunStopped) and outcome.cause == "hardware", outcome
+    assert "unplugged" in str(outcome)
+    assert len([r for r in store.records() if r["kind"] == "point"]) == 2
+    assert store.status()["state"] == "stopped"
