@@ -160,6 +160,8 @@ class Camera(Strict):
     min_exposure_s: Pos = 1e-5
     max_exposure_s: Pos = 30.0
     overhead_s: NonNeg = 0.0
+    #: Wall seconds a capture may take beyond twice its exposure before the run stops on a camera fault.
+    capture_timeout_s: Annotated[float, Field(gt=0, le=3600)] = 60.0
     resolution: tuple[Annotated[int, Field(ge=8, le=8192)], Annotated[int, Field(ge=8, le=8192)]] = (32, 32)
     roi: tuple[int, int, int, int] | None = None
     spp: Annotated[int, Field(ge=1, le=4096)] = 4

@@ -17,6 +17,7 @@ from rig.instrument.links.base import MotionLink
 from rig.instrument.links.dynamixel import DynamixelOptions
 from rig.run import registry
 from rig.run.backends import Instruments, RigBackend
+from rig.run.bounded_camera import BoundedCamera
 from rig.run.config import RigConfig
 from rig.run.reference import ManualReference, ReferenceTarget
 
@@ -55,7 +56,8 @@ def _grbl_link(rig: RigConfig, clock: Clock) -> MotionLink:
 
 @contextlib.contextmanager
 def _instruments(rig: RigConfig, link: MotionLink, clock: Clock) -> Iterator[Instruments]:
-    camera = open_camera(rig, clock)
+    # Bounded here, not only in the runner, so that closing a camera that hung cannot hang the exit.
+    camera = BoundedCamera(open_camera(rig, clock), slack_s=rig.file.camera.capture_timeout_s)
     manual: ReferenceTarget | None = ManualReference() if rig.file.reference.kind == "manual" else None
     try:
         yield Instruments(link, camera, clock, manual)

@@ -30,6 +30,7 @@ from rig.instrument.clock import Clock
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints, forward
 from rig.instrument.links.base import LinkError, MotionLink, MoveTimeout
+from rig.run.bounded_camera import BoundedCamera
 from rig.run.journal import check_records
 from rig.run.measure import CaptureSettings, Level, Reading, take_reading
 from rig.run.plan import Plan, PlannedPoint
@@ -78,6 +79,8 @@ class RunOptions:
     save_images: bool = False
     include_cosine: bool = False
     progress: bool = True
+    #: Wall seconds a camera call may take beyond twice its exposure before it is a camera fault.
+    capture_timeout_s: float = 60.0
 
 
 @dataclass(frozen=True)
@@ -116,9 +119,11 @@ class Runner:
     ) -> None:
         if reference is not None and target is None:
             raise ValueError("a reference schedule needs a ReferenceTarget to put the tile in view")
+        self.options = options or RunOptions()
+        if not isinstance(camera, BoundedCamera):  # every wait on the camera is bounded
+            camera = BoundedCamera(camera, slack_s=self.options.capture_timeout_s)
         self.plan, self.store, self.link, self.camera, self.clock = plan, store, link, camera, clock
         self.geometry, self.capture, self.reference, self.target = geometry, capture, reference, target
-        self.options = options or RunOptions()
         self._measured = self._references = self._drift = 0
 
     # -- the loop -------------------------------------------------------------------------------------

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -270,3 +271,42 @@ def test_a_pulled_cable_is_a_hardware_stop_with_the_journal_intact(tmp_path: Pat
     assert "unplugged" in str(outcome)
     assert len([r for r in store.records() if r["kind"] == "point"]) == 2
     assert store.status()["state"] == "stopped"
+
+
+def test_a_capture_that_never_returns_is_a_camera_fault_with_the_rig_safe(tmp_path: Path) -> None:
+    release = threading.Event()
+
+    def hang() -> None:
+        release.wait()  # a driver stuck in a USB transfer: never returns until the test lets it go
+
+    try:
+        # The deadline is twice the exposure plus capture_timeout_s; a hung call exceeds any deadline.
+        rig = sim_rig(camera={"capture_timeout_s": 0.5})
+        store, _, (outcome, torque) = _run(tmp_path, rig, _sweep(), lambda sim: {3: hang})
+    finally:
+        release.set()
+    assert isinstance(outcome, RunStopped) and outcome.cause == "camera", outcome
+    assert "did not return within" in str(outcome)
+    assert len([r for r in store.records() if r["kind"] == "point"]) == 1
+    assert torque and not any(torque)
+
+
+def test_a_camera_that_returns_nothing_is_a_camera_fault_not_an_attribute_error(tmp_path: Path) -> None:
+    class NoFrame(FlakyCamera):
+        def capture(self) -> Any:
+            self.captures += 1
+            return None if self.captures >= 3 else self._camera.capture()
+
+    rig, sweep = sim_rig(), _sweep()
+    plan = make_plan(rig, sweep)
+    store = RunStore.create(tmp_path / "run", manifest(rig, sweep, plan, options_for(rig, sweep, False)))
+    with SimulatedRig(spec_from(rig)) as sim:
+        assert sim.camera is not None
+        runner = Runner(plan, store, sim.open_link(dynamixel_options(rig)), NoFrame(sim.camera, {}), sim.clock,
+                        rig.geometry, capture_settings(rig, sweep), reference=reference_settings(rig),
+                        target=sim.reference, options=options_for(rig, sweep, False))  # fmt: skip
+        with pytest.raises(RunStopped, match="returned None instead of a Frame") as stopped:
+            runner.run()
+        store.close()
+        assert stopped.value.cause == "camera"
+        assert not any(sim.bus.servo(int(a.address)).torque_enabled for a in sim.axes)  # type: ignore[union-attr]
