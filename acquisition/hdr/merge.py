@@ -42,8 +42,10 @@ when its noise is negative. Measured on the default sensor: an ROI exactly at a 
 Flags (:class:`HdrFlag`). ``SATURATED``: saturated in every frame; the radiance is a lower bound (the
 shortest frame's value over its exposure) and the variance is +inf. ``DARK``: the longest frame's signal is
 below ``dark_sigma`` standard deviations of its noise at zero signal; the radiance is still the unbiased
-estimate (it may be negative), and its variance the model's. ``frames_used`` counts the frames that entered
-each pixel's estimate.
+estimate (it may be negative), and its variance the model's. ``BELOW_BLACK`` (with DARK): the estimate is more
+than ``BELOW_BLACK_SIGMA`` standard errors below zero, which no light gives: the frames sit below their black
+level or darks (a wrong black level in the metadata, a dark taken at another temperature). ``frames_used``
+counts the frames that entered each pixel's estimate.
 
 Darks. ``darks`` maps exposure times (s) to a dark Frame, a sequence of dark Frames (averaged; variance
 divided by their number), a master-dark array or a mean dark level (counts, noise neglected). A dark
@@ -104,6 +106,14 @@ class HdrFlag(enum.IntFlag):
     SATURATED = 1
     #: Below ``dark_sigma`` noise sigmas even in the longest frame (undetected): radiance is unreliable.
     DARK = 2
+    #: Below zero by more than ``BELOW_BLACK_SIGMA`` standard errors, which no radiance gives: the frames sit
+    #: below their black level (or their darks), so that level is wrong. Set together with DARK.
+    BELOW_BLACK = 4
+
+
+#: A pixel whose estimate is this many standard errors below zero is flagged BELOW_BLACK (a zero-signal
+#: pixel does so by chance about 3 times in 10 million).
+BELOW_BLACK_SIGMA = 5.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -147,8 +157,13 @@ class HdrImage:
 
     @property
     def dark(self) -> npt.NDArray[np.bool_]:
-        """Pixels dark in every frame."""
-        return (self.flags & HdrFlag.DARK) != 0
+        """Pixels dark in every frame (below black included)."""
+        return (self.flags & (HdrFlag.DARK | HdrFlag.BELOW_BLACK)) != 0
+
+    @property
+    def below_black(self) -> npt.NDArray[np.bool_]:
+        """Pixels that read below black by more than BELOW_BLACK_SIGMA standard errors (a wrong black level)."""
+        return (self.flags & HdrFlag.BELOW_BLACK) != 0
 
 
 def merge_linear(
@@ -255,6 +270,9 @@ def merge_linear(
         step = 2 if kind == "raw" or frames[0].cfa_pattern else 1
         signal = neighbour_mean(rad.reshape(shape).astype(np.float64), step).reshape(-1)
         rad, var, flags, used = prep.run(True, signal)
+    with np.errstate(invalid="ignore"):
+        below = (rad < -BELOW_BLACK_SIGMA * np.sqrt(var)) & (flags != HdrFlag.SATURATED)
+    flags = np.where(below, flags | HdrFlag.DARK | HdrFlag.BELOW_BLACK, flags).astype(np.uint8)
 
     no_darks = darks is None
     metadata: dict[str, object] = {

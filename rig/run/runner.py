@@ -231,6 +231,7 @@ class Runner:
         return {
             "reading": np.atleast_1d(r.mean).tolist(), "reading_std_error": np.atleast_1d(r.std_error).tolist(),
             "n_pixels": r.n_pixels, "n_flagged": np.atleast_1d(r.n_flagged).tolist(), "lower_bound": r.lower_bound,
+            "dark": r.dark, "n_dark": np.atleast_1d(r.n_dark).tolist(),
             "exposures_s": list(reading.exposures_s), "dark_exposures_s": list(reading.dark_exposures_s),
             "test_exposures_s": list(reading.test_exposures_s), "level": reading.level.as_dict(),
             "notes": list(reading.notes),
@@ -253,6 +254,8 @@ class Runner:
         }  # fmt: skip
         if reading.roi.lower_bound:
             raise _CameraFailed("the reference reading saturated in every frame; lower the light or the exposure")
+        if reading.roi.dark:
+            raise _CameraFailed("the reference reading is dark even after metering: is the lamp on, the lens cap off?")
         if last is not None:
             a, b = np.asarray(last["reading"]), np.asarray(record["reading"])
             se = np.hypot(np.asarray(last["reading_std_error"]), np.asarray(record["reading_std_error"]))
