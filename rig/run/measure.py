@@ -176,7 +176,7 @@ def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | No
     reading = _capture(camera, settings, metered.plan.exposures_s, metered.test_exposures_s, notes + metered.notes)
     if reading.roi.dark:
         still = "the ROI is dark even after metering (no light detected): kept, flagged dark"
-        return dataclasses.replace(reading, notes=reading.notes + (still,))
+        return dataclasses.replace(reading, notes=(*reading.notes, still))
     return reading
 
 
