@@ -29,8 +29,8 @@ def _positions(t: np.ndarray, a: float, b: float, v: float, acc: float) -> np.nd
         x = np.where(t < total / 2, 0.5 * acc * t**2, d - 0.5 * acc * np.clip(total - t, 0, None) ** 2)
     else:
         ta, total = v / acc, d / v + v / acc
-        x = np.where(t < ta, 0.5 * acc * t**2, np.where(t < total - ta, 0.5 * acc * ta**2 + v * (t - ta),
-                                                          d - 0.5 * acc * np.clip(total - t, 0, None) ** 2))  # fmt: skip
+        braking = d - 0.5 * acc * np.clip(total - t, 0, None) ** 2
+        x = np.where(t < ta, 0.5 * acc * t**2, np.where(t < total - ta, 0.5 * acc * ta**2 + v * (t - ta), braking))
     return a + np.sign(b - a) * np.minimum(x, d)
 
 
@@ -91,8 +91,10 @@ def test_in_plane_points_on_the_far_side_of_the_other_arm_are_skipped_with_the_r
     coordinated=st.booleans(),
     light_speed=st.floats(5.0, 120.0),
     camera_speed=st.floats(5.0, 120.0),
-    rows=st.lists(st.tuples(st.floats(0.0, 80.0), st.floats(-180.0, 180.0), st.floats(0.0, 80.0),
-                            st.floats(-180.0, 180.0)), min_size=1, max_size=12),  # fmt: skip
+    rows=st.lists(
+        st.tuples(st.floats(0.0, 80.0), st.floats(-180.0, 180.0), st.floats(0.0, 80.0), st.floats(-180.0, 180.0)),
+        min_size=1, max_size=12,
+    ),
     order=st.booleans(),
 )
 def test_no_planned_move_ever_brings_the_arms_closer_than_the_minimum(
