@@ -71,7 +71,7 @@ class BoundedCamera:
             )
         if "error" in box:
             raise box["error"]
-        return box["value"]  # type: ignore[no-any-return]
+        return box["value"]
 
     def set_exposure(self, exposure_s: float, gain: float | None = None) -> ExposureSettings:
         """Set the exposure (s); returns what the camera applied."""

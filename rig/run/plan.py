@@ -24,7 +24,7 @@ considered by it.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -136,6 +136,8 @@ class Plan:
     #: Moves (to points and to and from the reference pose) split into safe legs, of ``moves`` in all.
     split_moves: int = 0
     moves: int = 0
+    #: The swept-path check the plan used; the runner's guard checks every move at run time with it.
+    paths: ArmPaths | None = field(default=None, compare=False, repr=False)
 
     def summary(self, examples: int = 3) -> str:
         """Human-readable plan: counts, unreachable points grouped by reason with examples, time by cause."""
@@ -458,5 +460,5 @@ def plan_sweep(
         reference_captures=len(refs),
     )
     moves = n + (2 * len(refs) - (1 if refs and refs[-1] == n else 0) if r_row is not None else 0)
-    return Plan(points, tuple(skipped), estimate, start, refs, reference_joints, unordered, split, moves)
+    return Plan(points, tuple(skipped), estimate, start, refs, reference_joints, unordered, split, moves, paths)
 

@@ -33,6 +33,7 @@ from rig.instrument.links.base import LinkError, MotionLink, MoveTimeout
 from rig.run.bounded_camera import BoundedCamera
 from rig.run.journal import check_records
 from rig.run.measure import CaptureSettings, Level, Reading, take_reading
+from rig.run.motion_guard import MotionGuard
 from rig.run.plan import Plan, PlannedPoint
 from rig.run.reference import ReferenceTarget
 from rig.run.store import JOURNAL, RunStore
@@ -125,6 +126,10 @@ class Runner:
         self.plan, self.store, self.link, self.camera, self.clock = plan, store, link, camera, clock
         self.geometry, self.capture, self.reference, self.target = geometry, capture, reference, target
         self._measured = self._references = self._drift = 0
+        allowed = [p.joints for p in plan.points] + [v for p in plan.points for v in p.via]
+        if reference is not None:
+            allowed.append(reference.joints)
+        self.guard = MotionGuard(plan.paths, allowed)
 
     # -- the loop -------------------------------------------------------------------------------------
     def run(self) -> RunSummary:
@@ -180,21 +185,35 @@ class Runner:
         return f"θi {ti:.0f}° θo {to:.0f}° reading {float(np.mean(reading.roi.mean)):.4g} DN/s"
 
     # -- motion ---------------------------------------------------------------------------------------
-    def _move(self, joints: Joints) -> Joints:
-        target = {k: float(v) for k, v in joints.as_dict().items()}
+    def _move(self, joints: Joints, via: tuple[Joints, ...] = ()) -> Joints:
+        held: dict[str, float] = {}
+        for stop in (*via, joints):
+            target = {k: float(v) for k, v in stop.as_dict().items() if k in self.guard_names}
+            # Every leg is checked from where the arms are now (the guard), never assumed from the plan.
+            for leg in self.guard.legs(self.link, target):
+                held = self._leg(leg)
+        if self.options.settle_s > 0:
+            self.clock.sleep(self.options.settle_s)
+        names = set(Joints.__dataclass_fields__)
+        return Joints.from_dict({**{k: float(v) for k, v in joints.as_dict().items()},
+                                 **{k: v for k, v in held.items() if k in names}})  # fmt: skip
+
+    @property
+    def guard_names(self) -> set[str]:
+        """Joints the link drives (the others have no axis and stay where the plan holds them)."""
+        return set(self.plan.paths.names) if self.plan.paths is not None else set(Joints.__dataclass_fields__)
+
+    def _leg(self, target: dict[str, float]) -> dict[str, float]:
+        """One move to ``target`` (deg), re-issued once after a timeout; the joints read back."""
         for attempt in (1, 2):
             self.link.move_to(target)
             try:
-                held = self.link.wait_in_position(timeout_s=self.options.move_timeout_s)
-                break
+                return self.link.wait_in_position(timeout_s=self.options.move_timeout_s)
             except MoveTimeout as exc:
                 self._event("move_timeout", str(exc), attempt=attempt)
                 if attempt == 2:
                     raise
-        if self.options.settle_s > 0:
-            self.clock.sleep(self.options.settle_s)
-        names = set(Joints.__dataclass_fields__)
-        return Joints.from_dict({k: v for k, v in held.items() if k in names})
+        raise AssertionError("unreachable")
 
     def _read(self, previous: Level | None, capture: CaptureSettings | None = None) -> Reading:
         for attempt in (1, 2):
@@ -208,7 +227,7 @@ class Runner:
 
     # -- one point, one reference ---------------------------------------------------------------------
     def _point(self, pos: int, point: PlannedPoint, level: Level | None) -> Reading:
-        actual = self._move(point.joints)
+        actual = self._move(point.joints, point.via)
         d = forward(self.geometry, actual)
         reading = self._read(level)
         image = None

@@ -124,3 +124,29 @@ def test_split_moves_count_in_the_time_estimate(coordinated: bool) -> None:
         assert plan.split_moves == 1 and len(plan.points[1].via) == 1
         direct = plan_sweep(rows[1:], g, axes, order=False, start=plan.points[0].joints)
         assert plan.estimate.motion_s > direct.estimate.motion_s
+
+
+class _StandingLink:
+    """A link whose arms stand at given angles (degrees): enough for the guard, which only reads them back."""
+
+    def __init__(self, positions: dict[str, float]) -> None:
+        self.positions = positions
+
+    def read_positions(self) -> dict[str, float]:
+        return dict(self.positions)
+
+
+def test_the_runtime_guard_refuses_unchecked_targets_and_unsafe_paths_from_where_the_arms_are() -> None:
+    from rig.run.motion_guard import MotionGuard, UnsafeMove
+
+    g = RigGeometry(layout="in_plane")
+    axes = _axes(("light", "camera"), {})
+    plan = plan_sweep(np.array([[20.0, 0.0, 40.0, 180.0]]), g, axes)  # light 20, camera -40
+    guard = MotionGuard(plan.paths, [p.joints for p in plan.points])
+    target = {"light": 20.0, "camera": -40.0}
+    assert guard.legs(_StandingLink({"light": 0.0, "camera": -50.0}), target) == [target]  # type: ignore[arg-type]
+    with pytest.raises(UnsafeMove, match="not a pose the plan checked"):
+        guard.legs(_StandingLink({"light": 0.0, "camera": -50.0}), {"light": 25.0, "camera": -40.0})  # type: ignore[arg-type]
+    # A resumed run whose arms stand the other way round: the planned move would pass them through each other.
+    with pytest.raises(UnsafeMove, match="would pass closer than 8 deg"):
+        guard.legs(_StandingLink({"light": -30.0, "camera": 30.0}), target)  # type: ignore[arg-type]
