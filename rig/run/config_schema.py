@@ -119,14 +119,15 @@ class AxisTable(Strict):
 
     id: Annotated[int, Field(ge=0, le=252)] | None = None
     letter: Literal["X", "Y", "Z", "A", "B", "C"] | None = None
-    units_per_degree: Pos | None = None
-    gear_ratio: Pos = 1.0
+    # Upper bounds far beyond any joint: they keep move-time and path arithmetic finite.
+    units_per_degree: Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)] | None = None
+    gear_ratio: Annotated[float, Field(gt=0, le=1e4, allow_inf_nan=False)] = 1.0
     direction: Literal[1, -1] = 1
-    zero_offset_deg: Finite = -180.0
-    min_deg: Finite | None = None
-    max_deg: Finite | None = None
-    max_speed_deg_s: Pos = 60.0
-    max_accel_deg_s2: Pos = 120.0
+    zero_offset_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] = -180.0
+    min_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] | None = None
+    max_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] | None = None
+    max_speed_deg_s: Annotated[float, Field(gt=0, le=1e5, allow_inf_nan=False)] = 60.0
+    max_accel_deg_s2: Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)] = 120.0
     tolerance_deg: Pos = 0.2
 
     @model_validator(mode="after")

@@ -18,8 +18,9 @@ from typing import Any
 from acquisition.exposure.spec import CameraTiming
 from acquisition.noise import SensorNoise
 from rig.instrument.kinematics import inverse, require
+from rig.instrument.kinematics_types import UnreachableError
 from rig.run.backends import Instruments, backend
-from rig.run.config import RigConfig, SweepConfig, parse, rig_config, sweep_config
+from rig.run.config import ConfigError, RigConfig, SweepConfig, parse, rig_config, sweep_config
 from rig.run.config_schema import RigFile, SweepFile
 from rig.run.journal import check_records
 from rig.run.measure import CaptureSettings
@@ -49,7 +50,13 @@ def reference_settings(rig: RigConfig) -> ReferenceSettings | None:
     ref = rig.file.reference
     if ref.kind == "none":
         return None
-    joints = require(inverse(rig.geometry, ref.theta_i_deg, 0.0, ref.theta_o_deg, 180.0))
+    try:
+        joints = require(inverse(rig.geometry, ref.theta_i_deg, 0.0, ref.theta_o_deg, 180.0))
+    except UnreachableError as exc:
+        raise ConfigError(
+            f"{rig.path}: [reference] theta_i_deg = {ref.theta_i_deg!r}, theta_o_deg = {ref.theta_o_deg!r}: "
+            f"the reference pose is unreachable on this rig ({exc}); expected a pose the rig reaches"
+        ) from None
     return ReferenceSettings(ref.albedo, ref.albedo_std_error, ref.theta_i_deg, ref.theta_o_deg, joints,
                              every=ref.every, drift_sigma=ref.drift_sigma, target_snr=ref.target_snr)  # fmt: skip
 
