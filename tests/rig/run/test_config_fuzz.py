@@ -113,7 +113,7 @@ def test_a_toml_nested_a_thousand_levels_deep_is_a_config_error(tmp_path: Path) 
 def test_an_unreachable_reference_pose_names_the_file_and_the_table() -> None:
     from rig.run.session import reference_settings
 
-    doc = {"reference": {"theta_i_deg": 20.0, "theta_o_deg": 22.0}}  # 2 deg apart: closer than the arms can be
+    doc = {"reference": {"theta_i_deg": 0.0, "theta_o_deg": 5.0}}  # 5 deg apart: closer than the arms can be
     rig = rig_config(parse(doc, RigFile, "lab-rig.toml"), "lab-rig.toml")
-    with pytest.raises(ConfigError, match=r"lab-rig.toml: \[reference\] theta_i_deg = 20.0, theta_o_deg = 22.0: "):
+    with pytest.raises(ConfigError, match=r"lab-rig.toml: \[reference\] theta_i_deg = 0.0, theta_o_deg = 5.0: "):
         reference_settings(rig)
