@@ -150,3 +150,30 @@ def test_the_runtime_guard_refuses_unchecked_targets_and_unsafe_paths_from_where
     # A resumed run whose arms stand the other way round: the planned move would pass them through each other.
     with pytest.raises(UnsafeMove, match="would pass closer than 8 deg"):
         guard.legs(_StandingLink({"light": -30.0, "camera": 30.0}), target)  # type: ignore[arg-type]
+
+
+def test_large_sweeps_are_ordered_through_the_tree_without_the_full_matrix(monkeypatch: pytest.MonkeyPatch) -> None:
+    import rig.run.plan_order as po
+
+    rng = np.random.default_rng(4)
+    pts = rng.uniform(-90, 90, size=(1000, 4))
+    speed, accel = np.array([60.0, 60.0, 30.0, 90.0]), np.array([120.0] * 4)
+    start = np.zeros(4)
+    monkeypatch.setattr(po, "MATRIX_LIMIT", 100)  # 1000 points take the n log n path
+    monkeypatch.setattr(po, "pairwise_times", _no_full_matrix(po.pairwise_times, 1000))
+    order = po.order_path(pts, start, speed, accel, False)
+    assert sorted(order.tolist()) == list(range(1000))
+
+    def cost(o: np.ndarray) -> float:
+        path = np.vstack([start, pts[o]])
+        return float(po.step_times(path[:-1], path[1:], speed, accel, False).sum())
+
+    assert cost(order) < 0.5 * cost(np.arange(1000))
+
+
+def _no_full_matrix(real, n):  # type: ignore[no-untyped-def]
+    def call(src, dst, *args):  # type: ignore[no-untyped-def]
+        assert len(src) * len(dst) < n * n // 4, "a full move-time matrix was built"
+        return real(src, dst, *args)
+
+    return call
