@@ -51,7 +51,8 @@ def _grbl_link(rig: RigConfig, clock: Clock) -> MotionLink:
 
     f = rig.file.link
     assert f.port is not None
-    return GrblLink(f.port, rig.axes, baudrate=f.baudrate, clock=clock)
+    # A run never assumes where the axes are: it homes (or refuses to move without homing, $22=0).
+    return GrblLink(f.port, rig.axes, baudrate=f.baudrate, clock=clock, require_home=True)
 
 
 @contextlib.contextmanager
