@@ -55,8 +55,9 @@ class GrblLink:
     with ``configure`` it writes ``$100..$12x`` from the axes. With ``require_home`` (what a run uses) every
     move first makes sure the position is known: it homes after a connect, a reset or an alarm, and refuses
     to move a controller without homing ($22=0), whose position after a reset is wherever the axes stood.
-    ``banner_timeout_s`` and ``reply_timeout_s`` are wall-clock seconds for serial answers; ``command_timeout_s``, ``home_timeout_s``, ``stop_timeout_s`` and
-    ``poll_interval_s`` are seconds of ``clock``. The ``session`` attribute is the raw GRBL connection.
+    ``banner_timeout_s`` and ``reply_timeout_s`` are wall-clock seconds for serial answers;
+    ``command_timeout_s``, ``home_timeout_s``, ``stop_timeout_s`` and ``poll_interval_s`` are seconds of
+    ``clock``. The ``session`` attribute is the raw GRBL connection.
     """
 
     def __init__(
