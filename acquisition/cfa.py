@@ -97,18 +97,22 @@ def reduce_mosaic_roi(
     *,
     on_flagged: FlaggedPolicy = "exclude",
     error_model: ErrorModel = "max",
+    dark: npt.ArrayLike | None = None,
 ) -> RoiReading:
     """Per-colour (R, G, B) mean of an HDR mosaic's ROI over its whole 2x2 cells, with standard errors.
 
     Same units as ``radiance`` (counts/s for the linear merge); ``roi`` is a pixel box of the mosaic;
-    ``n_pixels`` of the reading counts cells. See :func:`acquisition.roi.reduce_roi` for the policies.
+    ``n_pixels`` of the reading counts cells. See :func:`acquisition.roi.reduce_roi` for the policies; a
+    cell's colour counts as dark where any of its pixels of that colour is (``dark``, the HDR's mask).
     """
     rad = np.asarray(radiance)
     cx0, cy0, cx1, cy1 = cell_box(roi, rad.shape)
     sub = (slice(2 * cy0, 2 * cy1), slice(2 * cx0, 2 * cx1))
     fl = None if flags is None else np.asarray(flags)[sub]
     r, v, f = bin_hdr(rad[sub], np.asarray(variance)[sub], fl, cfa_pattern)
-    return reduce_roi(r, v, (0, 0, cx1 - cx0, cy1 - cy0), flags=f, on_flagged=on_flagged, error_model=error_model)
+    dk = None if dark is None else bin_planes(np.asarray(dark)[sub] != 0, cfa_pattern, mean_greens=False) > 0
+    return reduce_roi(r, v, (0, 0, cx1 - cx0, cy1 - cy0), flags=f, on_flagged=on_flagged, error_model=error_model,
+                      dark=dk)  # fmt: skip
 
 
 def counts_above_black(frame: Frame, roi: Box | None = None) -> FloatArray:
@@ -139,12 +143,14 @@ def counts_above_black(frame: Frame, roi: Box | None = None) -> FloatArray:
 def reduce_hdr_roi(hdr: HdrImage, roi: Box, *, on_flagged: FlaggedPolicy = "exclude") -> RoiReading:
     """An HDR image's ROI reading: per colour over whole 2x2 cells for a raw mosaic, per channel otherwise.
 
-    Saturated pixels are flagged (see :func:`acquisition.roi.reduce_roi`); units are the merge's (counts/s).
+    Saturated pixels are flagged and dark ones counted (see :func:`acquisition.roi.reduce_roi`); units are
+    the merge's (counts/s).
     """
     pattern = hdr.metadata.get("cfa_pattern")
     if hdr.metadata.get("kind") == "raw" and isinstance(pattern, str):
-        return reduce_mosaic_roi(hdr.radiance, hdr.variance, roi, pattern, flags=hdr.saturated, on_flagged=on_flagged)
-    return reduce_roi(hdr.radiance, hdr.variance, roi, flags=hdr.saturated, on_flagged=on_flagged)
+        return reduce_mosaic_roi(hdr.radiance, hdr.variance, roi, pattern, flags=hdr.saturated, on_flagged=on_flagged,
+                                 dark=hdr.dark)  # fmt: skip
+    return reduce_roi(hdr.radiance, hdr.variance, roi, flags=hdr.saturated, on_flagged=on_flagged, dark=hdr.dark)
 
 
 def colour_planes(hdr: HdrImage, roi: Box) -> FloatArray:

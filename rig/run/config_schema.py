@@ -121,14 +121,15 @@ class AxisTable(Strict):
 
     id: Annotated[int, Field(ge=0, le=252)] | None = None
     letter: Literal["X", "Y", "Z", "A", "B", "C"] | None = None
-    units_per_degree: Pos | None = None
-    gear_ratio: Pos = 1.0
+    # Upper bounds far beyond any joint: they keep move-time and path arithmetic finite.
+    units_per_degree: Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)] | None = None
+    gear_ratio: Annotated[float, Field(gt=0, le=1e4, allow_inf_nan=False)] = 1.0
     direction: Literal[1, -1] = 1
-    zero_offset_deg: Finite = -180.0
-    min_deg: Finite | None = None
-    max_deg: Finite | None = None
-    max_speed_deg_s: Pos = 60.0
-    max_accel_deg_s2: Pos = 120.0
+    zero_offset_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] = -180.0
+    min_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] | None = None
+    max_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] | None = None
+    max_speed_deg_s: Annotated[float, Field(gt=0, le=1e5, allow_inf_nan=False)] = 60.0
+    max_accel_deg_s2: Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)] = 120.0
     tolerance_deg: Pos = 0.2
 
     @model_validator(mode="after")
@@ -151,7 +152,7 @@ class Noise(Strict):
 
 #: [camera] keys every backend reads; the others belong to one backend or a few (``CameraBackend.keys``).
 COMMON_CAMERA_KEYS = ("backend", "min_exposure_s", "max_exposure_s", "overhead_s", "roi", "noise", "calibration",
-                      "flat_field")  # fmt: skip
+                      "flat_field", "capture_timeout_s")  # fmt: skip
 #: The keys of the camera that comes with the simulated rig.
 SIMULATED_CAMERA_KEYS = ("resolution", "spp", "variant")
 
@@ -175,6 +176,8 @@ class Camera(Strict):
     min_exposure_s: Pos = 1e-5
     max_exposure_s: Pos = 30.0
     overhead_s: NonNeg = 0.0
+    #: Wall seconds a capture may take beyond twice its exposure before the run stops on a camera fault.
+    capture_timeout_s: Annotated[float, Field(gt=0, le=3600)] = 60.0
     roi: tuple[int, int, int, int] | None = None
     noise: Noise = Noise()
     calibration: str | None = None

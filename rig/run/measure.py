@@ -5,6 +5,9 @@ the numbers the journal keeps, so a resumed run plans exactly what an uninterrup
 level yet or when the planned bracket clipped, from metering test frames. A fixed list of exposures skips
 planning. The previous point only predicts this one's level: where this point turns out darker and its
 dimmest channel falls short of the SNR goal, a second bracket planned from its own level tops it up.
+A dark ROI (most pixels undetected, or a mean within its noise of zero: a black frame, a capped lens, a
+point far darker than the last) is metered afresh before it is accepted; one still dark after metering is
+kept, with ``RoiReading.dark`` set and a note, so the table can say so.
 """
 
 from __future__ import annotations
@@ -157,9 +160,12 @@ def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | No
             notes = ("the bracket planned from the previous point clipped every pixel: metered afresh",)
         else:
             # Clipped pixels would be left out of the mean, and they are the brightest: never keep that.
-            if not reading.roi.lower_bound and not np.any(reading.roi.n_flagged):
+            if reading.roi.dark:
+                notes = ("the bracket planned from the previous point left the ROI dark: metered afresh",)
+            elif not reading.roi.lower_bound and not np.any(reading.roi.n_flagged):
                 return _topped_up(camera, settings, frames, reading)
-            notes = ("the bracket planned from the previous point clipped: metered afresh",)
+            else:
+                notes = ("the bracket planned from the previous point clipped: metered afresh",)
 
     def take_roi(t: float) -> npt.NDArray[np.float64]:
         return counts_above_black(_shoot(camera, t), settings.roi)
@@ -167,7 +173,11 @@ def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | No
     metered = meter(take_roi, settings.noise, settings.target_snr, settings.timing,
                     start_exposure_s=settings.first_exposure_s, dark_frames=settings.dark_frames,
                     max_frames=settings.max_frames)  # fmt: skip
-    return _capture(camera, settings, metered.plan.exposures_s, metered.test_exposures_s, notes + metered.notes)
+    reading = _capture(camera, settings, metered.plan.exposures_s, metered.test_exposures_s, notes + metered.notes)
+    if reading.roi.dark:
+        still = "the ROI is dark even after metering (no light detected): kept, flagged dark"
+        return dataclasses.replace(reading, notes=(*reading.notes, still))
+    return reading
 
 
 def snr_reached(reading: RoiReading) -> float:
