@@ -88,15 +88,18 @@ def study(
         worst = max(abs(r["z"][n]) for n in r["z"])
         print(f"  rig {k:2d}: max |z| {worst:4.2f}, zeros err (deg) "
               + ", ".join(f"{r['errors'][n]:+.4f}" for n in SCALARS[:4])
-              + f", tilt err {r['errors']['sample_tilt_deg']:+.4f}, chi2/dof {r['reduced_chi2']:.2f}, {r['wall_s']:.0f} s",
+              + f", tilt err {r['errors']['sample_tilt_deg']:+.4f}, chi2/dof {r['reduced_chi2']:.2f}, "
+              f"{r['wall_s']:.0f} s",
               flush=True)  # fmt: skip
     names = list(results[0]["z"])
     summary = {}
     for n in names:
         zs = np.array([r["z"][n] for r in results])
         es = np.array([r["errors"][n] for r in results])
-        summary[n] = {"within_3se": float(np.mean(np.abs(zs) <= 3)), "rms_z": float(np.sqrt(np.mean(zs**2))),
-                      "max_abs_error": float(np.max(np.abs(es))), "rms_error": float(np.sqrt(np.mean(es**2)))}  # fmt: skip
+        summary[n] = {
+            "within_3se": float(np.mean(np.abs(zs) <= 3)), "rms_z": float(np.sqrt(np.mean(zs**2))),
+            "max_abs_error": float(np.max(np.abs(es))), "rms_error": float(np.sqrt(np.mean(es**2))),
+        }  # fmt: skip
     return {"summary": summary, "wall_s": float(np.mean([r["wall_s"] for r in results]))}
 
 
@@ -104,7 +107,8 @@ def _print(summary: dict[str, Any]) -> None:
     print(f"  {'quantity':<26} {'within 3 SE':>11} {'RMS z':>7} {'RMS error':>10} {'max |error|':>12}")
     for n, s in summary["summary"].items():
         print(
-            f"  {n:<26} {100 * s['within_3se']:10.0f}% {s['rms_z']:7.2f} {s['rms_error']:10.5f} {s['max_abs_error']:12.5f}"
+            f"  {n:<26} {100 * s['within_3se']:10.0f}% {s['rms_z']:7.2f} {s['rms_error']:10.5f} "
+            f"{s['max_abs_error']:12.5f}"
         )
     zeros = max(summary["summary"][n]["max_abs_error"] for n in SCALARS[:4])
     print(f"  largest joint-zero error {zeros:.4f} deg, largest tilt error "

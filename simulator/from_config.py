@@ -8,6 +8,7 @@ from acquisition.noise import SensorNoise
 from rig.instrument.alignment import Alignment
 from rig.run.config import ConfigError, RigConfig, material_from
 from rig.run.config_schema import Misalignment
+from simulator.camera.pixels import PixelResponse
 from simulator.render.spec import CameraSpec, LightSpec
 from simulator.rig import SimRigSpec
 
@@ -18,12 +19,17 @@ def spec_from(rig: RigConfig) -> SimRigSpec:
     if f.link.kind != "simulated":
         raise ConfigError(f"{rig.path}: link.kind = {f.link.kind!r}: the simulated rig needs 'simulated'")
     cam = f.camera
-    try:
-        noise = SensorNoise(**cam.noise.model_dump())
-    except ValueError as exc:
-        raise ConfigError(f"{rig.path}: camera.noise: {exc}") from None
     sim = f.simulation
     mis = sim.misalignment
+    # The sensor as it is ([simulation.sensor]), each key it leaves out as the controller assumes ([camera.noise]).
+    truth = {k: v for k, v in sim.sensor.model_dump().items()
+             if k in SensorNoise.__dataclass_fields__ and v is not None}  # fmt: skip
+    try:
+        noise = SensorNoise(**{**cam.noise.model_dump(), **truth})
+    except ValueError as exc:
+        raise ConfigError(f"{rig.path}: simulation.sensor: {exc}") from None
+    response = PixelResponse(vignetting=sim.sensor.vignetting, prnu_rms=sim.sensor.prnu_rms,
+                             nonlinearity=sim.sensor.nonlinearity, seed=sim.seed)  # fmt: skip
     albedo = f.reference.albedo
     try:
         light = LightSpec(kind=sim.light_kind, intensity=sim.light_intensity_w_sr, size_m=mis.light_size_mm * 1e-3,
@@ -46,6 +52,8 @@ def spec_from(rig: RigConfig) -> SimRigSpec:
         stray_light_counts_s=mis.stray_light,
         lamp_drift=mis.lamp_drift,
         lamp_warmup_s=mis.lamp_warmup_s,
+        camera_output=sim.camera_output,
+        response=response,
     )
 
 

@@ -19,7 +19,7 @@ import threading
 from collections.abc import Hashable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -36,7 +36,9 @@ from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints, world_pose
 from rig.instrument.links.dynamixel import DynamixelLink, DynamixelOptions
 from rig.run.config import default_axes
-from simulator.camera.simulated import CameraOptics, SimulatedCamera
+from simulator.camera.pixels import PixelResponse
+from simulator.camera.simulated import CameraOptics, SensorPatch, SimulatedCamera
+from simulator.camera.view import SimulatedFlatSource, roi_patch
 from simulator.dynamixel.bus import VirtualDynamixelBus
 from simulator.render.renderer import RadianceRenderer
 from simulator.render.spec import CameraSpec, LightSpec
@@ -87,6 +89,13 @@ class SimRigSpec:
         Ambient light reaching every pixel, in counts per second at gain 1 (not in dark frames).
     lamp_drift, lamp_warmup_s:
         A warming lamp: intensity times 1 + lamp_drift (1 - exp(-t / lamp_warmup_s)) at rig time t (s).
+    camera_output:
+        "linear" (demosaiced counts), "raw" (a CFA mosaic) or "dng" (a mosaic written as a DNG file and read
+        back through rawpy, the path a real camera's RAW files take); see ``simulator.camera.simulated``.
+    response:
+        The sensor's hidden vignetting, pixel response non-uniformity and non-linearity.
+    dng_dir:
+        Where "dng" frames are written and kept; None: a temporary folder, each file removed once read.
     """
 
     geometry: RigGeometry = field(default_factory=RigGeometry)
@@ -106,6 +115,9 @@ class SimRigSpec:
     stray_light_counts_s: float = 0.0
     lamp_drift: float = 0.0
     lamp_warmup_s: float = 600.0
+    camera_output: Literal["linear", "raw", "dng"] = "linear"
+    response: PixelResponse = field(default_factory=PixelResponse)
+    dng_dir: Path | None = None
 
     def resolved_axes(self) -> tuple[Axis, ...]:
         """The axes, defaulted from the geometry, checked to cover every joint of the layout."""
@@ -139,6 +151,8 @@ class SimulatedRig:
         self._reading: int | None = None
         self._shown: MitsubaMaterial | dict[str, Any] = self.material
         self._reference_material = to_mitsuba(Lambert(self.spec.reference_albedo))
+        self.flat_source = SimulatedFlatSource(self.spec.camera.resolution, self.spec.noise, self.spec.optics)
+        self._dng_tmp: tempfile.TemporaryDirectory[str] | None = None
 
     def start(self) -> SimulatedRig:
         """Bring up the virtual bus and the camera; refuses if another simulated rig runs in this process."""
@@ -155,11 +169,17 @@ class SimulatedRig:
             bus = VirtualDynamixelBus(ids, self.spec.baudrate, self.clock, seed=self.spec.seed, positions=positions)
             bus.start()
             self.bus = bus
+            dng_dir = self.spec.dng_dir
+            if self.spec.camera_output == "dng" and dng_dir is None:
+                self._dng_tmp = tempfile.TemporaryDirectory(prefix="gonio-sim-dng-")
+                dng_dir = Path(self._dng_tmp.name)
             self.camera = SimulatedCamera(
-                self._radiance, noise=self.spec.noise, optics=self.spec.optics, clock=self.clock,
+                self._patch, noise=self.spec.noise, optics=self.spec.optics, clock=self.clock,
                 seed=self.spec.seed, fixed_pattern_dn=self.spec.fixed_pattern_dn, state_key=self._state_key,
                 stray_counts_per_s=self.spec.stray_light_counts_s,
                 camera_id=f"gonio simulated camera ({self.spec.material.__class__.__name__}, {self.material.plugin})",
+                kind="linear" if self.spec.camera_output == "linear" else "raw", response=self.spec.response,
+                dng_dir=dng_dir if self.spec.camera_output == "dng" else None, keep_dng=self.spec.dng_dir is not None,
             )  # fmt: skip
             _active.append(self)
         return self
@@ -177,6 +197,9 @@ class SimulatedRig:
                 self.camera.close()
             if self.bus is not None:
                 self.bus.close()
+            if self._dng_tmp is not None:
+                self._dng_tmp.cleanup()
+                self._dng_tmp = None
             if self in _active:
                 _active.remove(self)
 
@@ -223,7 +246,9 @@ class SimulatedRig:
     def _state_key(self) -> tuple[object, ...]:
         assert self.bus is not None
         ticks = tuple(round(self.bus.servo(int(a.address)).physical_position_ticks(), 3) for a in self.axes)
-        key = (ticks, repr(self._showing))
+        key: tuple[object, ...] = (ticks, repr(self._showing))
+        if self.flat_source.state != "off":
+            key = (*key, self.flat_source.state)
         return key if self._reading is None else (*key, self._reading)
 
     def radiance_now(self, full_frame: bool = False) -> npt.NDArray[np.float64]:
@@ -236,11 +261,24 @@ class SimulatedRig:
         warm = self.spec.lamp_drift * -math.expm1(-t / self.spec.lamp_warmup_s) if self.spec.lamp_drift else 0.0
         return (1.0 + self.spec.light_drift_per_s * t) * (1.0 + warm)
 
-    def _radiance(self, full_frame: bool = False) -> npt.NDArray[np.float64]:
+    def _patch(self, full_frame: bool = False) -> SensorPatch:
+        """What the camera sees: the flat-field source while one is in use, else the rendered ROI's window."""
+        if self.flat_source.state != "off":
+            return self.flat_source.patch()
+        if full_frame:
+            return SensorPatch(self._radiance(full_frame=True))
+        # The controller picks its ROI for the rig as drawn; the scene rendered is what the rig really is.
+        box = self.renderer.roi(world_pose(self.spec.geometry, self.joints_now()))
+        return roi_patch(lambda crop: self._radiance(crop=crop), box, self.spec.camera.resolution,
+                         self.spec.camera_output == "dng")  # fmt: skip
+
+    def _radiance(
+        self, full_frame: bool = False, crop: tuple[int, int, int, int] | None = None
+    ) -> npt.NDArray[np.float64]:
         joints = self.joints_now()
         true = aligned_pose(self.spec.geometry, joints, self.spec.misalignment)
-        # The controller picks its ROI for the rig as drawn; the scene is what the rig really is.
-        crop = None if full_frame else self.renderer.roi(world_pose(self.spec.geometry, joints))
+        if crop is None and not full_frame:
+            crop = self.renderer.roi(world_pose(self.spec.geometry, joints))
         self.renders += 1
         # The render's own sampling noise is part of each rig's noise: seeded like the sensor's.
         image = self.renderer.render(true, self._shown, crop=crop, key=repr(self._showing), seed=self.spec.seed)

@@ -30,6 +30,7 @@ from rig.instrument.clock import Clock
 from rig.instrument.links.base import MotionLink
 from rig.run import registry
 from rig.run.config import RigConfig
+from rig.run.flat_source import FlatSource
 from rig.run.reference import BoardTarget, ReferenceTarget
 
 #: Joint angles in degrees a simulated rig starts at (a resumed run's last pose), by joint name.
@@ -38,12 +39,14 @@ StartPose = Mapping[str, float]
 
 @dataclass
 class Instruments:
-    """What a run drives: the link, the camera, the clock they share, the reference target (if any)."""
+    """What a run drives: the link, the camera, the clock they share, the reference target (if any), the flat source."""
 
     link: MotionLink
     camera: Camera
     clock: Clock
     target: ReferenceTarget | None
+    #: What ``gonio calibrate camera`` shows the camera (None: the backend cannot calibrate its camera).
+    flat_source: FlatSource | None = None
     #: Mounts the calibration board for ``gonio calibrate geometry`` (None: the backend cannot).
     board: BoardTarget | None = None
 
