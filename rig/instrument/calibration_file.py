@@ -12,6 +12,7 @@ each frame showed), ``warnings``, and ``rig`` (the rig file's path and SHA-256 w
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import hashlib
 import json
@@ -50,6 +51,23 @@ class GeometryCalibration:
     rig_sha256: str | None = None
     reduced_chi2: float | None = None
     warnings: tuple[str, ...] = ()
+
+    def snapshot(self) -> dict[str, Any]:
+        """JSON-ready form for a run's manifest, so a resumed run corrects exactly as it started."""
+        return {"alignment": dataclasses.asdict(self.alignment), "names": list(self.names),
+                "covariance": self.covariance.tolist(), "path": str(self.path) if self.path else None,
+                "created_utc": self.created_utc, "rig_sha256": self.rig_sha256, "reduced_chi2": self.reduced_chi2,
+                "warnings": list(self.warnings)}  # fmt: skip
+
+    @classmethod
+    def from_snapshot(cls, doc: dict[str, Any]) -> GeometryCalibration:
+        """The calibration a manifest's snapshot holds."""
+        a = dict(doc["alignment"])
+        a["sample_offset_mm"] = tuple(a["sample_offset_mm"])
+        return cls(Alignment(**a), tuple(doc.get("names", ())), np.asarray(doc.get("covariance", []), dtype=float)
+                   .reshape(len(doc.get("names", ())), len(doc.get("names", ()))),
+                   Path(doc["path"]) if doc.get("path") else None, doc.get("created_utc"), doc.get("rig_sha256"),
+                   doc.get("reduced_chi2"), tuple(doc.get("warnings", ())))  # fmt: skip
 
     def describe(self) -> str:
         """One line for ``gonio plan``: where the calibration is from, when, and its largest corrections."""

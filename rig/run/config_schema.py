@@ -61,7 +61,11 @@ class Limits(Strict):
 
 
 class Geometry(Strict):
-    """``[geometry]``: the rig's layout, arm radii and sample size in metres, angles in degrees."""
+    """``[geometry]``: the rig's layout, arm radii and sample size in metres, angles in degrees.
+
+    ``calibration``: a ``geometry_calibration.json`` (``gonio calibrate geometry``; relative to the rig
+    file) whose joint zeros, sample tilt and offset the kinematics correct for.
+    """
 
     layout: Literal["four_axis", "in_plane", "fixed_camera"] = "four_axis"
     light_radius_m: Pos = 0.5
@@ -75,6 +79,7 @@ class Geometry(Strict):
     camera_azimuth_deg: Finite = 0.0
     plane_azimuth_deg: Finite = 0.0
     limits: Limits = Limits()
+    calibration: str | None = None
 
 
 def _one_of(value: str, known: tuple[str, ...]) -> str:

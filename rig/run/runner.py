@@ -32,9 +32,10 @@ import numpy as np
 from tqdm import tqdm
 
 from acquisition.frame import Camera
+from rig.instrument.alignment import Alignment, aligned_forward
 from rig.instrument.clock import Clock
 from rig.instrument.geometry import RigGeometry
-from rig.instrument.kinematics import Joints, forward
+from rig.instrument.kinematics import Joints
 from rig.instrument.links.base import LinkError, MotionLink, MoveTimeout
 from rig.run.bounded_camera import BoundedCamera
 from rig.run.journal import check_records
@@ -123,6 +124,7 @@ class Runner:
         reference: ReferenceSettings | None = None,
         target: ReferenceTarget | None = None,
         options: RunOptions | None = None,
+        alignment: Alignment | None = None,
     ) -> None:
         if reference is not None and target is None:
             raise ValueError("a reference schedule needs a ReferenceTarget to put the tile in view")
@@ -133,6 +135,8 @@ class Runner:
         self.geometry, self.capture, self.reference, self.target = geometry, capture, reference, target
         self._measured = self._references = self._drift = 0
         self._offset = 0.0  # run time = clock time + offset (see _continue_time)
+        #: The rig's known imperfections (its geometry calibration): read-backs become the true directions.
+        self.alignment = alignment or Alignment()
         allowed = [p.joints for p in plan.points] + [v for p in plan.points for v in p.via]
         if reference is not None:
             allowed.append(reference.joints)
@@ -264,7 +268,7 @@ class Runner:
     # -- one point, one reference ---------------------------------------------------------------------
     def _point(self, pos: int, point: PlannedPoint, level: Level | None) -> Reading:
         actual = self._move(point.joints, point.via)
-        d = forward(self.geometry, actual)
+        d = aligned_forward(self.geometry, actual, self.alignment)
         t0 = self.now()
         reading = self._read(level)
         t1 = self.now()
