@@ -16,8 +16,10 @@ from rig.run.session import make_plan
 
 pytestmark = pytest.mark.mitsuba
 
-MISALIGNMENT = {"light_zero_deg": 0.5, "camera_zero_deg": -0.3, "tilt_zero_deg": 0.25, "roll_zero_deg": 0.6,
-                "sample_tilt_deg": 0.5, "sample_tilt_azimuth_deg": 40.0, "sample_offset_mm": [1.0, -1.2, 0.6]}  # fmt: skip
+MISALIGNMENT = {
+    "light_zero_deg": 0.5, "camera_zero_deg": -0.3, "tilt_zero_deg": 0.25, "roll_zero_deg": 0.6,
+    "sample_tilt_deg": 0.5, "sample_tilt_azimuth_deg": 40.0, "sample_offset_mm": [1.0, -1.2, 0.6],
+}  # fmt: skip
 NAMES = ("light_zero_deg", "camera_zero_deg", "tilt_zero_deg", "roll_zero_deg", "sample_tilt_deg",
          "sample_tilt_azimuth_deg")  # fmt: skip
 
@@ -98,14 +100,17 @@ def test_a_bad_calibration_file_names_the_file_and_key(tmp_path: Path) -> None:
     bad = tmp_path / "geometry_calibration.json"
     bad.write_text(json.dumps({"format": "gonio geometry calibration", "version": 1, "light_zero_deg": {"value": "x"}}))
     rig = _rig_file(tmp_path, {}, extra='[geometry]\ncalibration = "geometry_calibration.json"\n')
-    with pytest.raises(ConfigError, match=r"geometry\.calibration = 'geometry_calibration\.json': .*light_zero_deg\.value"):
+    where = r"geometry\.calibration = 'geometry_calibration\.json': .*light_zero_deg\.value"
+    with pytest.raises(ConfigError, match=where):
         load_rig(rig)
     rig.write_text('[geometry]\ncalibration = "missing.json"\n')
     with pytest.raises(ConfigError, match="no such file"):
         load_rig(rig)
 
 
-def test_a_highlight_outside_every_planned_view_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_highlight_outside_every_planned_view_is_a_clear_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     rig = _rig_file(tmp_path, {"light_zero_deg": 6.0})
     code = main(["calibrate", "geometry", "--rig", str(rig), "--out", str(tmp_path), "--captures", "9", "--quiet"])
     assert code == 2
