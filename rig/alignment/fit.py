@@ -5,7 +5,9 @@ divided by its standard error: the highlight's from its peak fit (at least ``HIG
 corners' from their own scatter about the fit (estimated in a first pass, then fixed, with corners beyond
 5 of it dropped as misdetections). The parameters' covariance is the inverse normal matrix, scaled up by
 chi2/dof where the residuals exceed their errors (the model then explains less than the noise predicts:
-the uncertainty must say so). Pairs of parameters correlated beyond ``MAX_CORRELATION`` are named: the
+the uncertainty must say so), widened where a jackknife over captures scatters more (errors a frame's
+corners share), plus the systematic term of a bias common to every highlight (the peak model's accuracy,
+``HIGHLIGHT_SYSTEMATIC_PX``). Pairs of parameters correlated beyond ``MAX_CORRELATION`` are named: the
 captures cannot tell them apart.
 """
 
@@ -19,15 +21,19 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import least_squares
 
-from rig.alignment.model import PARAMETERS, alignment_of, coat_peak, parameters_of, predict
+from rig.alignment.model import coat_peak, predict
 from rig.alignment.observe import FrameObservation
-from rig.instrument.alignment import Alignment
+from rig.instrument.alignment import PARAMETERS, Alignment, alignment_of, parameters_of
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints
 
 FloatArray = npt.NDArray[np.float64]
 
 HIGHLIGHT_FLOOR_PX = 0.02
+#: How well the coat's modelled peak matches a rendered highlight (px): observed minus modelled peaks were
+#: within +-0.02 px on a perfect rig (alpha 0.01, 480 px); a bias common to every highlight is not seen
+#: in their scatter, so it enters the covariance as a systematic term (see _systematic).
+HIGHLIGHT_SYSTEMATIC_PX = 0.02
 MAX_CORRELATION = 0.95
 #: User-facing names of the fit parameters (the wedge is reported as tilt and azimuth, see quantities()).
 LABELS = {"wedge_x_deg": "sample_tilt_deg (x)", "wedge_y_deg": "sample_tilt_deg (y)",
@@ -158,6 +164,23 @@ class _Problem:
         return np.concatenate(parts) if parts else np.zeros(0), corner_res, hl_res
 
 
+def _systematic(jac: FloatArray, problem: _Problem) -> FloatArray:
+    """Covariance from a shift of HIGHLIGHT_SYSTEMATIC_PX common to every highlight, in x and in y."""
+    out = np.zeros((jac.shape[1], jac.shape[1]))
+    rows = problem.rows()
+    normal = jac.T @ jac
+    for axis in (0, 1):
+        shift = np.zeros(jac.shape[0])
+        for cap, sl in zip(problem.captures, rows, strict=True):
+            h = cap.seen.highlight
+            if h is not None:
+                shift[sl.stop - 2 + axis] = HIGHLIGHT_SYSTEMATIC_PX / max(h.std_error_px, HIGHLIGHT_FLOOR_PX)
+        if shift.any():
+            dp = np.linalg.lstsq(normal, jac.T @ shift, rcond=None)[0]
+            out += np.outer(dp, dp)
+    return out
+
+
 def _with_jackknife(cov: FloatArray, jac: FloatArray, r: FloatArray, rows: list[slice]) -> FloatArray:
     """The covariance, widened where leaving out one capture at a time moves a parameter more than it says.
 
@@ -249,6 +272,7 @@ def fit_geometry(
         cov = np.linalg.pinv(jac.T @ jac)
     cov *= max(1.0, chi2 / dof)
     cov = _with_jackknife(cov, jac, r, problem.rows())
+    cov = cov + _systematic(jac, problem)
     warnings = []
     if n_highlights == 0 and "light_zero_deg" in names:
         warnings.append("no capture showed the lamp's highlight: light_zero_deg rests on nothing but its start value")

@@ -17,9 +17,6 @@ camera sees the lamp's mirror image in the sample's plane.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Sequence
-
 import numpy as np
 import numpy.typing as npt
 
@@ -30,42 +27,6 @@ from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints
 
 FloatArray = npt.NDArray[np.float64]
-
-ZEROS = ("light_zero_deg", "camera_zero_deg", "tilt_zero_deg", "roll_zero_deg")
-WEDGE = ("wedge_x_deg", "wedge_y_deg")
-OFFSET = ("offset_x_mm", "offset_y_mm", "offset_z_mm")
-PARAMETERS: dict[str, tuple[str, ...]] = {
-    "four_axis": (*ZEROS, *WEDGE, *OFFSET),
-    "in_plane": (*ZEROS, *OFFSET),
-    "fixed_camera": ("light_zero_deg", "yaw_zero_deg", "tilt_zero_deg", "roll_zero_deg", *WEDGE, *OFFSET),
-}
-
-
-def alignment_of(names: Sequence[str], values: npt.ArrayLike) -> Alignment:
-    """The Alignment a parameter vector stands for (names from PARAMETERS)."""
-    v = dict(zip(names, np.asarray(values, dtype=np.float64).tolist(), strict=True))
-    wx, wy = v.get("wedge_x_deg", 0.0), v.get("wedge_y_deg", 0.0)
-    return Alignment(
-        light_zero_deg=v.get("light_zero_deg", 0.0), camera_zero_deg=v.get("camera_zero_deg", 0.0),
-        tilt_zero_deg=v.get("tilt_zero_deg", 0.0), roll_zero_deg=v.get("roll_zero_deg", 0.0),
-        yaw_zero_deg=v.get("yaw_zero_deg", 0.0), sample_tilt_deg=math.hypot(wx, wy),
-        sample_tilt_azimuth_deg=math.degrees(math.atan2(wy, wx)) if (wx or wy) else 0.0,
-        sample_offset_mm=(v.get("offset_x_mm", 0.0), v.get("offset_y_mm", 0.0), v.get("offset_z_mm", 0.0)),
-    )  # fmt: skip
-
-
-def parameters_of(names: Sequence[str], alignment: Alignment) -> FloatArray:
-    """The parameter vector of an Alignment (its inverse, for the parameters the layout fits)."""
-    tau, psi = math.radians(alignment.sample_tilt_deg), math.radians(alignment.sample_tilt_azimuth_deg)
-    values = {
-        "light_zero_deg": alignment.light_zero_deg, "camera_zero_deg": alignment.camera_zero_deg,
-        "tilt_zero_deg": alignment.tilt_zero_deg, "roll_zero_deg": alignment.roll_zero_deg,
-        "yaw_zero_deg": alignment.yaw_zero_deg,
-        "wedge_x_deg": math.degrees(tau) * math.cos(psi), "wedge_y_deg": math.degrees(tau) * math.sin(psi),
-        "offset_x_mm": alignment.sample_offset_mm[0], "offset_y_mm": alignment.sample_offset_mm[1],
-        "offset_z_mm": alignment.sample_offset_mm[2],
-    }  # fmt: skip
-    return np.array([values[n] for n in names])
 
 
 def coat_peak(

@@ -23,16 +23,20 @@ FloatArray = npt.NDArray[np.float64]
 
 #: The highlight must be this many times brighter than the board's typical (median) level.
 MIN_CONTRAST = 8.0
+#: Corners closer to the highlight than this many half-maximum radii are not used (see observe).
+GLARE_RADII = 6.0
 
 
 @dataclass(frozen=True)
 class Highlight:
-    """The mirror highlight's peak in continuous pixels, its standard error (px), and its peak level (counts/s)."""
+    """The mirror highlight's peak in continuous pixels, its standard error (px), its peak level (counts/s)
+    and the radius (px) of its half-maximum region."""
 
     x: float
     y: float
     std_error_px: float
     peak: float
+    radius_px: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -102,7 +106,8 @@ def peak_of(
     jac[:, 4] = -np.linalg.solve(hess, np.array([offset[1], offset[0]]))
     jac[:, 5] = -np.linalg.solve(hess, np.array([0.0, 2 * offset[1]]))
     se = float(np.sqrt(max(np.trace(jac @ cov @ jac.T) / 2.0, 0.0)))
-    return Highlight(float(ix + 0.5 + offset[0]), float(iy + 0.5 + offset[1]), se, peak), ""
+    radius = float(np.sqrt(len(xs) / np.pi))
+    return Highlight(float(ix + 0.5 + offset[0]), float(iy + 0.5 + offset[1]), se, peak, radius), ""
 
 
 def _connected(mask: npt.NDArray[np.bool_], y: int, x: int) -> npt.NDArray[np.bool_]:
@@ -114,13 +119,30 @@ def _connected(mask: npt.NDArray[np.bool_], y: int, x: int) -> npt.NDArray[np.bo
     return out
 
 
-def observe(radiance: FloatArray, variance: FloatArray, board: ChArUcoBoard) -> FrameObservation:
-    """Corners and highlight of an HDR frame (H, W) or (H, W, C) in counts/s with its variance."""
+def observe(
+    radiance: FloatArray, variance: FloatArray, board: ChArUcoBoard, *, corners: bool = True
+) -> FrameObservation:
+    """Corners and highlight of an HDR frame (H, W) or (H, W, C) in counts/s with its variance.
+
+    ``corners=False`` finds the highlight only: at a mirror pose the coat reflects the lamp over the whole
+    board (a GGX lobe's tails fall as the fourth power of the angle, and its peak is hundreds of times the
+    print), and a corner's saddle on that gradient is found off its place.
+    """
     lum = np.asarray(radiance, dtype=np.float64)
     var = np.asarray(variance, dtype=np.float64)
     if lum.ndim == 3:
         c = lum.shape[2]
         lum, var = lum.mean(axis=2), var.sum(axis=2) / (c * c)
-    ids, px = board.detect(tone_map(np.where(np.isfinite(lum), lum, 0.0)))
+    if corners:
+        ids, px = board.detect(tone_map(np.where(np.isfinite(lum), lum, 0.0)))
+    else:
+        ids, px = np.zeros(0, dtype=np.int64), np.zeros((0, 2))
     highlight, why = find_highlight(lum, var)
+    if highlight is not None and len(ids):
+        # The coat's reflection adds a steep gradient around the highlight, and a corner's saddle on a
+        # gradient is found off its place: such corners pulled the camera's angle by a hundredth of a degree.
+        far = np.hypot(px[:, 0] - highlight.x, px[:, 1] - highlight.y) > GLARE_RADII * max(highlight.radius_px, 1.0)
+        if not far.all():
+            why = f"{int((~far).sum())} corners in the highlight's glare left out"
+        ids, px = ids[far], px[far]
     return FrameObservation(ids, px, highlight, why)

@@ -8,7 +8,7 @@ Two kinds of capture, taken in two rounds:
 2. Mirror poses: the lamp and the camera symmetric about the sample's normal at a few incidences and rolls,
    solved with the first round's estimate (``rig.instrument.alignment.aligned_inverse``) so that the
    highlight lands near the image centre even on a rig misaligned by degrees; the highlights fix the
-   light's zero.
+   light's zero (their corners are not used: the coat's reflection of the lamp spreads over the board).
 
 Layouts whose stage cannot tilt or roll see the board from the arms' angles only.
 """
@@ -51,10 +51,10 @@ class CalibrationPoses:
 
 
 def split(captures: int) -> tuple[int, int]:
-    """How many board and mirror captures a calibration of ``captures`` takes (a third are board poses)."""
+    """How many board and mirror captures a calibration of ``captures`` takes (half each)."""
     if captures < MIN_CAPTURES:
         raise PoseError(f"--captures {captures}: a geometry calibration needs at least {MIN_CAPTURES} captures")
-    board = max(3, captures // 3)
+    board = max(4, captures // 2)
     return board, captures - board
 
 

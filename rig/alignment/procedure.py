@@ -79,13 +79,14 @@ def hdr_frame(camera: Camera, noise: SensorNoise, *, first_s: float = 0.01, max_
 
 
 def _capture(camera: Camera, noise: SensorNoise, link: Any, joints: Joints, board: ChArUcoBoard,
-             timeout_s: float) -> tuple[Capture, HdrImage]:  # fmt: skip
+             timeout_s: float, corners: bool = True) -> tuple[Capture, HdrImage]:  # fmt: skip
     link.move_to({k: float(v) for k, v in joints.as_dict().items()})
     held = link.wait_in_position(timeout_s=timeout_s)
     actual = Joints.from_dict({k: float(v) for k, v in held.items() if k in joints.as_dict()})
     hdr = hdr_frame(camera, noise)
     radiance = np.asarray(hdr.radiance, dtype=np.float64)
-    return Capture(actual, observe(radiance, np.asarray(hdr.variance, dtype=np.float64), board)), hdr
+    seen = observe(radiance, np.asarray(hdr.variance, dtype=np.float64), board, corners=corners)
+    return Capture(actual, seen), hdr
 
 
 def _capture_doc(i: int, kind: str, cap: Capture, hdr: HdrImage, fit: GeometryFit, k: int) -> dict[str, Any]:
@@ -183,12 +184,12 @@ def calibrate_geometry(
             first = fit_geometry(rig.geometry, caps, board.corners_local_m(), _focal(rig, hdrs[0]), _size(hdrs[0]),
                                  fixed=() if any(c.seen.highlight for c in caps) else ("light_zero_deg",))  # fmt: skip
             for j, joints in enumerate(mirror_joints(rig.geometry, poses, first.alignment)):
-                cap, hdr = _capture(camera, noise, inst.link, joints, board, timeout)
+                cap, hdr = _capture(camera, noise, inst.link, joints, board, timeout, corners=False)
                 caps.append(cap)
                 hdrs.append(hdr)
                 kinds.append("mirror")
                 i = len(poses.board) + j
-                say(f"capture {i + 1}/{captures} (mirror): {len(cap.seen.corner_ids)} corners, "
+                say(f"capture {i + 1}/{captures} (mirror): "
                     + ("highlight" if cap.seen.highlight else f"no highlight ({cap.seen.note})"))  # fmt: skip
         finally:
             if hasattr(camera, "full_frame"):

@@ -24,7 +24,7 @@ import math
 import sys
 import time
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -33,7 +33,10 @@ from tqdm import tqdm
 
 from acquisition.frame import Camera
 from rig.instrument.alignment import Alignment, aligned_forward
+from rig.instrument.axis import Axis
+from rig.instrument.calibration_file import GeometryCalibration
 from rig.instrument.clock import Clock
+from rig.instrument.direction_uncertainty import direction_covariances
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints
 from rig.instrument.links.base import LinkError, MotionLink, MoveTimeout
@@ -124,7 +127,8 @@ class Runner:
         reference: ReferenceSettings | None = None,
         target: ReferenceTarget | None = None,
         options: RunOptions | None = None,
-        alignment: Alignment | None = None,
+        calibration: GeometryCalibration | None = None,
+        axes: Sequence[Axis] = (),
     ) -> None:
         if reference is not None and target is None:
             raise ValueError("a reference schedule needs a ReferenceTarget to put the tile in view")
@@ -135,8 +139,11 @@ class Runner:
         self.geometry, self.capture, self.reference, self.target = geometry, capture, reference, target
         self._measured = self._references = self._drift = 0
         self._offset = 0.0  # run time = clock time + offset (see _continue_time)
-        #: The rig's known imperfections (its geometry calibration): read-backs become the true directions.
-        self.alignment = alignment or Alignment()
+        #: The rig's geometry calibration: read-backs become the true directions, its covariance their error.
+        self.calibration = calibration
+        self.alignment = calibration.alignment if calibration is not None else Alignment()
+        #: Encoder resolution per joint (deg): a count's uniform error, variance count^2 / 12.
+        self._resolution = {a.name: 1.0 / a.units_per_joint_degree for a in axes}
         allowed = [p.joints for p in plan.points] + [v for p in plan.points for v in p.via]
         if reference is not None:
             allowed.append(reference.joints)
@@ -272,6 +279,11 @@ class Runner:
         t0 = self.now()
         reading = self._read(level)
         t1 = self.now()
+        fault: LinkError | None = None
+        try:  # where the axes stood at the end: how far they moved during the frames
+            after: Mapping[str, float] = self.link.read_positions()
+        except LinkError as exc:  # the reading is taken: keep it, then stop on the fault
+            after, fault = {k: float(v) for k, v in actual.as_dict().items()}, exc
         image = None
         if self.options.save_images:
             image = str(self.store.save_image(f"point_{point.index:05d}", reading.hdr.radiance,
@@ -283,9 +295,25 @@ class Runner:
             "theta_o_deg": _f(float(d.theta_o)), "phi_o_deg": _f(float(d.phi_o)),
             "joints_deg": {k: _f(float(v)) for k, v in actual.as_dict().items()},
             **self._reading_fields(reading), "image": image, **self._times(t0, t1),
+            **self._uncertainty(actual, after),
         })  # fmt: skip
         self._measured += 1
+        if fault is not None:
+            raise fault
         return reading
+
+    def _uncertainty(self, before: Joints, after: Mapping[str, float]) -> dict[str, Any]:
+        """The directions' covariances (rig.instrument.direction_uncertainty) for the journal."""
+        variance = {}
+        for name, value in before.as_dict().items():
+            moved = float(after.get(name, value)) - float(value)
+            variance[name] = self._resolution.get(name, 0.0) ** 2 / 12.0 + moved * moved / 12.0
+        cal = self.calibration
+        angles, tangent = direction_covariances(
+            self.geometry, before, self.alignment, variance, cal.names if cal else (),
+            cal.covariance if cal is not None and cal.covariance.size else None,
+        )  # fmt: skip
+        return {"angle_cov_deg2": np.round(angles, 15).tolist(), "direction_cov": np.round(tangent, 18).tolist()}
 
     def _times(self, start: float, end: float) -> dict[str, Any]:
         """Time stamps of a record: rig clock, run time (s) at the record and at the reading's middle, UTC."""

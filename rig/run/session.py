@@ -130,7 +130,7 @@ def _run(store: RunStore, rig: RigConfig, sweep: SweepConfig, plan: Plan, progre
         runner = Runner(
             plan, store, inst.link, inst.camera, inst.clock, rig.geometry, capture_settings(rig, sweep),
             reference=reference_settings(rig) if inst.target is not None else None, target=inst.target,
-            options=options_for(rig, sweep, progress), alignment=rig.alignment,
+            options=options_for(rig, sweep, progress), calibration=rig.calibration, axes=rig.axes,
         )  # fmt: skip
         return runner.run()
 

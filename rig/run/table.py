@@ -12,11 +12,15 @@ Columns: the sweep index; measured and target BRDF angles (deg); the joint angle
 channel r, g, b: the BRDF (1/sr) with its standard error and the error without the reference albedo's
 common part, and the raw reading (counts/s at gain 1) with its error; whether the value is a lower
 bound (saturated pixels); whether the ROI was dark (no light detected even after metering: the value is
-noise about zero); the frames and their total exposure (s).
+noise about zero); the frames and their total exposure (s); the standard uncertainty of the measured
+angles (``theta_i_std_deg`` ... ``phi_o_std_deg``, deg) and the covariance of the local directions' tangent
+components (``direction_cov``, a JSON 4 x 4 over wi_x, wi_y, wo_x, wo_y; see
+``rig.instrument.direction_uncertainty``), empty for journals written before points carried them.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -53,6 +57,19 @@ def _calibration(
             time_s=times[1],
         )  # fmt: skip
     return cal
+
+
+ANGLES = ("theta_i", "phi_i", "theta_o", "phi_o")
+
+
+def _direction_columns(p: Mapping[str, Any]) -> dict[str, Any]:
+    """The angles' standard uncertainties (deg) and the directions' tangent covariance (JSON) of a point."""
+    if "angle_cov_deg2" not in p:
+        return {f"{a}_std_deg": None for a in ANGLES} | {"direction_cov": None}
+    var = np.diag(np.asarray(p["angle_cov_deg2"], dtype=float))
+    out: dict[str, Any] = {f"{a}_std_deg": float(np.sqrt(max(v, 0.0))) for a, v in zip(ANGLES, var, strict=True)}
+    out["direction_cov"] = json.dumps(p["direction_cov"], separators=(",", ":"))
+    return out
 
 
 def _channels(prefix: str, values: Sequence[float] | None) -> dict[str, Any]:
@@ -107,5 +124,6 @@ def build_rows(
         row["n_frames"] = len(p["exposures_s"])
         row["total_exposure_s"] = float(sum(p["exposures_s"]))
         row["exposures_s"] = ";".join(repr(float(t)) for t in p["exposures_s"])
+        row |= _direction_columns(p)
         rows.append(row)
     return rows

@@ -13,10 +13,10 @@ import pytest
 
 from acquisition.board import ChArUcoBoard
 from rig.alignment.fit import CalibrationError, Capture, fit_geometry
-from rig.alignment.model import PARAMETERS, alignment_of, coat_peak, parameters_of, predict
+from rig.alignment.model import coat_peak, predict
 from rig.alignment.observe import FrameObservation, Highlight, find_highlight
 from rig.alignment.poses import PoseError, mirror_joints, plan_poses
-from rig.instrument.alignment import Alignment
+from rig.instrument.alignment import PARAMETERS, Alignment, alignment_of, parameters_of
 from rig.instrument.camera_model import focal_length_px
 from rig.instrument.geometry import RigGeometry
 
