@@ -40,6 +40,15 @@ def _unwrap(delta: FloatArray) -> FloatArray:
     return out
 
 
+def _angle_slope(base: FloatArray, plus: FloatArray, minus: FloatArray, h: float) -> FloatArray:
+    """Central differences of the angles; at a pole (theta ~ 0, where theta = |...| has a kink) the slope's size."""
+    out = _unwrap(plus - minus) / (2 * h)
+    for k in (0, 2):
+        if base[k] < 1e3 * h:
+            out[k] = max(abs(plus[k] - base[k]), abs(minus[k] - base[k])) / h
+    return out
+
+
 def direction_covariances(
     geometry: RigGeometry,
     joints: Joints,
@@ -52,6 +61,7 @@ def direction_covariances(
 ) -> tuple[FloatArray, FloatArray]:
     """(angle covariance (4, 4) deg^2, tangent covariance (4, 4)) of one pose's measured directions."""
     values = {k: float(v) for k, v in joints.as_dict().items()}
+    base = _features(geometry, joints, alignment)[0]
     jac_a, jac_t, variances = [], [], []
     for name, var in joint_variance_deg2.items():
         if name not in values or var <= 0:
@@ -60,7 +70,7 @@ def direction_covariances(
         for sign in (1.0, -1.0):
             moved = Joints.from_dict({**values, name: values[name] + sign * step_deg})
             cols.append(_features(geometry, moved, alignment))
-        jac_a.append(_unwrap(cols[0][0] - cols[1][0]) / (2 * step_deg))
+        jac_a.append(_angle_slope(base, cols[0][0], cols[1][0], step_deg))
         jac_t.append((cols[0][1] - cols[1][1]) / (2 * step_deg))
         variances.append(var)
     cov_a, cov_t = np.zeros((4, 4)), np.zeros((4, 4))
@@ -76,7 +86,7 @@ def direction_covariances(
             h = 1e-4
             plus = _features(geometry, joints, alignment_of(names, p0 + h * np.eye(len(names))[k]))
             minus = _features(geometry, joints, alignment_of(names, p0 - h * np.eye(len(names))[k]))
-            ja_p.append(_unwrap(plus[0] - minus[0]) / (2 * h))
+            ja_p.append(_angle_slope(base, plus[0], minus[0], h))
             jt_p.append((plus[1] - minus[1]) / (2 * h))
         ja, jt = np.array(ja_p).T, np.array(jt_p).T
         cov_a, cov_t = cov_a + ja @ cov_p @ ja.T, cov_t + jt @ cov_p @ jt.T
