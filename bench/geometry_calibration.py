@@ -85,8 +85,8 @@ def study(
         mis = random_misalignment(rng, args.max_zero, args.max_tilt, args.max_offset)
         r = run_one(mis, args.seed * 1000 + k, captures, alpha, resolution, spp)
         results.append(r)
-        worst = max(abs(r["z"][n]) for n in r["z"])
-        print(f"  rig {k:2d}: max |z| {worst:4.2f}, zeros err (deg) "
+        worst = max(r["z"], key=lambda n: abs(r["z"][n]))
+        print(f"  rig {k:2d}: max |z| {abs(r['z'][worst]):4.2f} ({worst}), zeros err (deg) "
               + ", ".join(f"{r['errors'][n]:+.4f}" for n in SCALARS[:4])
               + f", tilt err {r['errors']['sample_tilt_deg']:+.4f}, chi2/dof {r['reduced_chi2']:.2f}, "
               f"{r['wall_s']:.0f} s",

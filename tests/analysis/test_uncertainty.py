@@ -25,8 +25,9 @@ def _calibration(tmp: Path, std_deg: float) -> Path:
     """A geometry calibration of the perfect rig whose joint zeros are uncertain by ``std_deg``."""
     names = PARAMETERS["four_axis"]
     cov = np.diag([std_deg**2 if n.endswith("zero_deg") else 1e-12 for n in names])
+    values = parameters_of(names, Alignment())
     doc = {n: {"value": float(v), "std_error": float(np.sqrt(cov[i, i]))}
-           for i, (n, v) in enumerate(zip(names, parameters_of(names, Alignment()), strict=True)) if n.endswith("_deg")}  # fmt: skip
+           for i, (n, v) in enumerate(zip(names, values, strict=True)) if n.endswith("_deg")}  # fmt: skip
     doc["sample_offset_mm"] = {"value": [0.0, 0.0, 0.0], "std_error": [0.0, 0.0, 0.0]}
     doc["covariance"] = {"names": list(names), "matrix": cov.tolist()}
     return write_geometry_calibration(tmp / "geometry_calibration.json", doc)
