@@ -33,7 +33,10 @@ class ChArUcoBoard:
     """A square ChArUco board: ``squares`` x ``squares`` squares of ``square_mm``, markers of ``marker_mm``.
 
     ``dictionary`` is an OpenCV predefined ArUco dictionary name; ``margin_mm`` the white border printed
-    around the pattern (the board's total width is squares * square_mm + 2 margin_mm).
+    around the pattern (the board's total width is squares * square_mm + 2 margin_mm). ``blank_mm`` is the
+    radius of a plain white disc printed over the pattern's centre, where the lamp's mirror highlight
+    lands: a marker's bits under the highlight would pull its fitted peak towards the white ones, always
+    the same way in the board's frame, which a fit reads as a tilt of the sample.
     """
 
     squares: int = 7
@@ -41,6 +44,7 @@ class ChArUcoBoard:
     marker_mm: float = 4.5
     dictionary: str = "DICT_4X4_50"
     margin_mm: float = 4.0
+    blank_mm: float = 9.0
 
     def __post_init__(self) -> None:
         if not 3 <= self.squares <= 20:
@@ -49,6 +53,9 @@ class ChArUcoBoard:
             raise BoardError(f"ChArUcoBoard.marker_mm = {self.marker_mm!r}: expected 0 < marker < square_mm")
         if self.margin_mm < 0:
             raise BoardError(f"ChArUcoBoard.margin_mm = {self.margin_mm!r}: expected >= 0")
+        if not 0 <= self.blank_mm < 0.35 * self.squares * self.square_mm:
+            raise BoardError(f"ChArUcoBoard.blank_mm = {self.blank_mm!r}: expected a radius in [0, "
+                             f"{0.35 * self.squares * self.square_mm:g}) mm (the pattern must keep its rim)")  # fmt: skip
 
     @property
     def width_mm(self) -> float:
@@ -72,6 +79,10 @@ class ChArUcoBoard:
         pattern = self.cv_board().generateImage((side, side), marginSize=0, borderBits=1)
         out = np.full((side + 2 * margin, side + 2 * margin), 255, dtype=np.uint8)
         out[margin : margin + side, margin : margin + side] = pattern
+        if self.blank_mm > 0:
+            c = 0.5 * (out.shape[0] - 1)
+            y, x = np.mgrid[0 : out.shape[0], 0 : out.shape[1]]
+            out[np.hypot(x - c, y - c) <= self.blank_mm * px_per_mm] = 255
         return out
 
     def detect(self, gray: npt.ArrayLike) -> tuple[npt.NDArray[np.int64], FloatArray]:
