@@ -61,6 +61,29 @@ def test_the_fit_recovers_a_known_rig_within_its_errors() -> None:
     assert q["sample_offset_mm"][0] == pytest.approx([1.0, -1.5, 0.8], abs=5 * max(q["sample_offset_mm"][1]))
 
 
+# What each other layout's parameters can hold: an in-plane rig has no stage joints, so its tilt and roll
+# zeros are the sample's fixed orientation (a wedge is one of them); a fixed camera has a yaw zero instead.
+OTHER_LAYOUTS = {
+    "in_plane": Alignment(light_zero_deg=0.6, camera_zero_deg=-0.4, tilt_zero_deg=0.3, roll_zero_deg=0.8,
+                          sample_offset_mm=(1.0, -1.5, 0.8)),
+    "fixed_camera": Alignment(light_zero_deg=0.6, tilt_zero_deg=0.3, roll_zero_deg=0.8, yaw_zero_deg=0.5,
+                              sample_tilt_deg=0.7, sample_tilt_azimuth_deg=35.0, sample_offset_mm=(1.0, -1.5, 0.8)),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("layout", sorted(OTHER_LAYOUTS))
+def test_the_fit_recovers_a_known_rig_of_the_other_layouts(layout: str) -> None:
+    g = RigGeometry(layout=layout)
+    truth = OTHER_LAYOUTS[layout]
+    caps = _captures(g, truth, np.random.default_rng(1), captures=16)
+    fit = fit_geometry(g, caps, BOARD.corners_local_m(), FOCAL, SIZE)
+    z = (fit.values - parameters_of(fit.names, truth)) / fit.std_errors()
+    assert np.all(np.abs(z) < 4), dict(zip(fit.names, z, strict=True))
+    assert fit.reduced_chi2 == pytest.approx(1.0, abs=0.2)
+    # The light's zero and the camera's (or the yaw's) move the mirror point alike on these rigs: said.
+    assert any("light_zero_deg and" in w and "are correlated" in w for w in fit.warnings), fit.warnings
+
+
 def test_reported_errors_are_honest_over_many_noise_draws() -> None:
     g = RigGeometry()
     zs = []
