@@ -54,8 +54,9 @@ class ChArUcoBoard:
         if self.margin_mm < 0:
             raise BoardError(f"ChArUcoBoard.margin_mm = {self.margin_mm!r}: expected >= 0")
         if not 0 <= self.blank_mm < 0.35 * self.squares * self.square_mm:
-            raise BoardError(f"ChArUcoBoard.blank_mm = {self.blank_mm!r}: expected a radius in [0, "
-                             f"{0.35 * self.squares * self.square_mm:g}) mm (the pattern must keep its rim)")  # fmt: skip
+            most = 0.35 * self.squares * self.square_mm
+            raise BoardError(f"ChArUcoBoard.blank_mm = {self.blank_mm!r}: expected a radius in [0, {most:g}) mm "
+                             "(the pattern must keep its rim)")  # fmt: skip
 
     @property
     def width_mm(self) -> float:
