@@ -207,6 +207,9 @@ class Samples:
                 ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg")}  # fmt: skip
         value = np.stack([[_num(r.get(f"brdf_{c}")) for r in rows] for c in chans], axis=-1)
         column = "brdf_se_readings" if errors == "readings" else "brdf_se"
+        if errors == "readings" and (missing := [f"{column}_{c}" for c in chans if f"{column}_{c}" not in rows[0]]):
+            raise FitError(f"{source or 'table'}: errors = 'readings' needs the columns {missing} (tables written "
+                           "before they were added have only brdf_se_*: use errors='total')")  # fmt: skip
         se = np.stack([[_num(r.get(f"{column}_{c}")) for r in rows] for c in chans], axis=-1)
         if errors == "point":
             missing = [k for c in chans for k in (f"reading_{c}", f"reading_se_{c}") if k not in rows[0]]
