@@ -31,6 +31,8 @@ FloatArray = npt.NDArray[np.float64]
 FILE_NAME = "geometry_calibration.json"
 FORMAT = "gonio geometry calibration"
 VERSION = 1
+#: chi2/dof of a geometry calibration above which its residuals are beyond its noise (warned of).
+RESIDUAL_LIMIT = 2.0
 SCALARS = ("light_zero_deg", "camera_zero_deg", "tilt_zero_deg", "roll_zero_deg", "yaw_zero_deg",
            "sample_tilt_deg", "sample_tilt_azimuth_deg")  # fmt: skip
 

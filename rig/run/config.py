@@ -23,7 +23,12 @@ import model
 from model.base import Model
 from rig.instrument.alignment import Alignment
 from rig.instrument.axis import Axis
-from rig.instrument.calibration_file import CalibrationFileError, GeometryCalibration, read_geometry_calibration
+from rig.instrument.calibration_file import (
+    RESIDUAL_LIMIT,
+    CalibrationFileError,
+    GeometryCalibration,
+    read_geometry_calibration,
+)
 from rig.instrument.geometry import GeometryError, JointLimits, RigGeometry
 from rig.instrument.links.dynamixel_table import X_SERIES
 from rig.run import registry
@@ -31,10 +36,6 @@ from rig.run.config_schema import RigFile, SweepFile
 
 FloatArray = npt.NDArray[np.float64]
 M = TypeVar("M", bound=BaseModel)
-
-
-#: chi2/dof of a geometry calibration above which its residuals are beyond its noise.
-RESIDUAL_LIMIT = 2.0
 
 
 class ConfigError(ValueError):

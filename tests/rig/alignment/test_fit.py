@@ -172,3 +172,20 @@ def test_the_coats_peak_leans_off_the_mirror_point_by_a_fraction_of_a_pixel() ->
     rough = float(np.hypot(*(coat_peak(g, j, Alignment(), FOCAL, SIZE, alpha=0.05) - mirror)))
     assert rough > shift  # the slopes pull harder on a wider lobe
     assert math.isfinite(rough)
+
+
+def test_residuals_beyond_the_noise_are_warned_of() -> None:
+    """A bias the model lacks (highlights 1.5 px off, as a rough coat's lean can be) is said, not hidden."""
+    g = RigGeometry()
+    caps = []
+    for k, c in enumerate(_captures(g, TRUTH, np.random.default_rng(5), captures=12)):
+        h = c.seen.highlight
+        if h is not None:
+            h = Highlight(h.x + 1.5 * (-1) ** k, h.y, h.std_error_px, h.peak)
+        caps.append(Capture(c.joints, FrameObservation(c.seen.corner_ids, c.seen.corners_px, h)))
+    fit = fit_geometry(g, caps, BOARD.corners_local_m(), FOCAL, SIZE)
+    assert fit.reduced_chi2 > 2
+    assert any("their noise" in w and "errors understate" in w for w in fit.warnings), fit.warnings
+    clean = fit_geometry(g, _captures(g, TRUTH, np.random.default_rng(5), captures=12), BOARD.corners_local_m(),
+                         FOCAL, SIZE)  # fmt: skip
+    assert not any("their noise" in w for w in clean.warnings), clean.warnings
