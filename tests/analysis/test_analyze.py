@@ -162,7 +162,8 @@ def same_files(a: Path, b: Path) -> list[str]:
 
 
 @pytest.mark.mitsuba
-def test_the_same_inputs_give_the_same_bytes(gold_report: tuple[Analysis, Path], gold_run: Path, tmp_path: Path) -> None:
+def test_the_same_inputs_give_the_same_bytes(gold_report: tuple[Analysis, Path], gold_run: Path,
+                                             tmp_path: Path) -> None:
     # A batch must never be a different analysis: everything gonio analyze writes depends on the inputs alone
     # (no wall-clock fit times, no dates or random ids in the SVGs).
     _, page = gold_report
