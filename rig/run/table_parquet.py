@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import re
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -51,7 +51,7 @@ _CHANNEL_COLUMN = re.compile(r"^(?P<what>brdf|brdf_se|brdf_se_readings|reading|r
 
 @dataclass(frozen=True)
 class Column:
-    """A table column's type ("int", "float", "bool", "str" or "list" of floats), unit ("" if none) and meaning."""
+    """A column's type (int, float, bool, str, list of floats, map of str to float), unit ("" if none), meaning."""
 
     kind: str
     unit: str
@@ -92,34 +92,53 @@ def _value(kind: str, value: Any, where: str) -> Any:
         if kind == "list":
             parts = value.split(";") if isinstance(value, str) else list(value)
             return [float(v) for v in parts]
+        if kind == "map":
+            return [(str(k), None if v is None else float(v)) for k, v in dict(value).items()]
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{where}: {value!r} is not a {kind} ({exc})") from None
     return str(value)
 
 
-def parquet_table(rows: Sequence[Mapping[str, Any]], columns: Sequence[str] | None = None) -> Any:
-    """The rows as a ``pyarrow.Table`` with units and descriptions on every field and in the file metadata."""
+def parquet_table(
+    rows: Sequence[Mapping[str, Any]],
+    columns: Sequence[str] | None = None,
+    *,
+    describe: Callable[[str], Column] = column,
+    table_format: str = TABLE_FORMAT,
+    metadata: Mapping[str, str] | None = None,
+) -> Any:
+    """The rows as a ``pyarrow.Table`` with units and descriptions on every field and in the file metadata.
+
+    ``describe`` gives each column's type, unit and meaning (default: the run table's :func:`column`);
+    ``metadata`` adds file-level keys beside ``gonio.table`` (= ``table_format``), ``gonio.version`` and
+    ``gonio.columns``.
+    """
     import pyarrow as pa
 
     cols = list(dict.fromkeys(k for row in rows for k in row) if columns is None else columns)
     types = {"float": pa.float64(), "int": pa.int64(), "bool": pa.bool_(), "str": pa.string(),
-             "list": pa.list_(pa.float64())}  # fmt: skip
+             "list": pa.list_(pa.float64()), "map": pa.map_(pa.string(), pa.float64())}  # fmt: skip
     fields, arrays, docs = [], [], {}
     for name in cols:
-        info = column(name)
+        info = describe(name)
         values = [_value(info.kind, row.get(name), f"row {i}, column {name!r}") for i, row in enumerate(rows)]
         fields.append(pa.field(name, types[info.kind], metadata={"unit": info.unit, "description": info.description}))
         arrays.append(pa.array(values, type=types[info.kind]))
         docs[name] = {"unit": info.unit, "description": info.description}
-    meta = {"gonio.table": TABLE_FORMAT, "gonio.version": gonio_version(), "gonio.columns": json.dumps(docs)}
+    meta = {"gonio.table": table_format, "gonio.version": gonio_version(), "gonio.columns": json.dumps(docs),
+            **(metadata or {})}  # fmt: skip
     return pa.Table.from_arrays(arrays, schema=pa.schema(fields, metadata=meta))
 
 
-def write_parquet(path: str | Path, rows: Sequence[Mapping[str, Any]], columns: Sequence[str] | None = None) -> Path:
-    """Write the rows to ``path`` as Parquet atomically (temporary file, fsync, rename); ValueError on a bad value."""
+def write_parquet(path: str | Path, rows: Sequence[Mapping[str, Any]], columns: Sequence[str] | None = None,
+                  **how: Any) -> Path:  # fmt: skip
+    """Write the rows to ``path`` as Parquet atomically (temporary file, fsync, rename); ValueError on a bad value.
+
+    ``how`` goes to :func:`parquet_table` (``describe``, ``table_format``, ``metadata``).
+    """
     import pyarrow.parquet as pq
 
-    table = parquet_table(rows, columns)
+    table = parquet_table(rows, columns, **how)
     target = Path(path)
     with atomic_path(target) as tmp:
         pq.write_table(table, tmp)

@@ -265,6 +265,17 @@ def test_a_run_with_too_few_points_names_the_run_and_the_fit_error(gold_run: Pat
     assert "only a MERL source is subsampled" in capsys.readouterr().err
 
 
+@pytest.mark.mitsuba
+def test_a_table_cut_short_is_refused_naming_the_line(gold_run: Path, tmp_path: Path, capsys) -> None:
+    run = tmp_path / "run"
+    shutil.copytree(gold_run, run, ignore=shutil.ignore_patterns("analysis", "lock"))
+    lines = (run / "samples.csv").read_text().splitlines(keepends=True)
+    (run / "samples.csv").write_text("".join(lines[:4]) + lines[4][: len(lines[4]) // 2])  # a copy cut mid-row
+    assert cli.main(["analyze", str(run), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"{run / 'samples.csv'}: line 5 has no " in err and "cut short or corrupt" in err, err
+
+
 def test_help_shows_an_example(capsys) -> None:
     with pytest.raises(SystemExit) as exc:
         cli.main(["analyze", "--help"])
