@@ -190,8 +190,9 @@ def _hold_when_written(key: str, stage: str, *, victim: str, gate: str) -> None:
         time.sleep(0.05)  # a barrier: released by the test, which kills this process first
 
 
-def test_a_worker_killed_mid_batch_leaves_every_input_done(cluster: Any, inputs: dict[str, Path],
-                                                           serial: dict[str, Path], tmp_path: Path) -> None:  # fmt: skip
+def test_a_worker_killed_mid_batch_leaves_every_input_done(
+    cluster: Any, inputs: dict[str, Path], serial: dict[str, Path], tmp_path: Path
+) -> None:
     gate, out = tmp_path / "gate", tmp_path / "out"
     gate.mkdir()
     killed: list[int] = []
