@@ -203,15 +203,15 @@ def round_rig(rig: RigConfig, index: int) -> RigConfig:
     """
     if index == 0:
         return rig
-    return _with(rig, "simulation", seed=(rig.file.simulation.seed * 1_000_003 + index) % 2**63)
+    return replace_table(rig, "simulation", seed=(rig.file.simulation.seed * 1_000_003 + index) % 2**63)
 
 
 def with_reference_snr(rig: RigConfig, snr: float | None) -> RigConfig:
     """The rig with its reference readings' SNR goal replaced (None: unchanged)."""
-    return rig if snr is None else _with(rig, "reference", target_snr=float(snr))
+    return rig if snr is None else replace_table(rig, "reference", target_snr=float(snr))
 
 
-def _with(rig: RigConfig, table: str, **keys: Any) -> RigConfig:
+def replace_table(rig: RigConfig, table: str, **keys: Any) -> RigConfig:
     """The rig with keys of one table of its file replaced."""
     new = getattr(rig.file, table).model_copy(update=keys)
     return dataclasses.replace(rig, file=rig.file.model_copy(update={table: new}))

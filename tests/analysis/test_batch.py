@@ -10,7 +10,6 @@ import shutil
 import signal
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -35,14 +34,6 @@ SETTINGS = AnalyzeSettings(models=MODELS, starts=STARTS, samples=MERL_SAMPLES)
 ORDER = ("gold", "corrupt", "paint")
 #: Generous: a loaded CI host may be 10x slower than a quiet one; nothing here waits this long when things work.
 TIMEOUT_S = 600.0
-
-
-@pytest.fixture(scope="module")
-def cluster() -> Iterator[Any]:
-    """The local cluster a batch starts by default, sized to 2 single-threaded workers, its dashboard on a free port."""
-    with cluster_client(ClusterSettings(workers=2, dashboard_address=":0")) as client:
-        assert len(client.scheduler_info()["workers"]) == 2
-        yield client
 
 
 @pytest.fixture(scope="module")
