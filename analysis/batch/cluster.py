@@ -32,8 +32,8 @@ class ClusterSettings:
     scheduler: str | None = None
     workers: int | None = None
     dashboard: bool = True
-    #: Where a local cluster's dashboard listens (":0" picks a free port; Dask's default is :8787).
-    dashboard_address: str = ":8787"
+    #: Where a local cluster's dashboard listens: this machine only (port 0 picks a free one; 8787 is Dask's).
+    dashboard_address: str = "127.0.0.1:8787"
     #: How long to try reaching ``scheduler`` before saying it cannot be reached (s).
     connect_timeout_s: float = 30.0
 

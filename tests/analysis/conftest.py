@@ -14,6 +14,6 @@ def cluster() -> Iterator[Any]:
     """
     from analysis.batch.cluster import ClusterSettings, cluster_client
 
-    with cluster_client(ClusterSettings(workers=2, dashboard_address=":0")) as client:
+    with cluster_client(ClusterSettings(workers=2, dashboard_address="127.0.0.1:0")) as client:
         assert len(client.scheduler_info()["workers"]) == 2
         yield client

@@ -121,3 +121,17 @@ def test_the_verdict_says_where_the_adaptive_sweep_reaches_the_dense_grid() -> N
     assert "never below the dense grid's" in verdict  # the mean of 0.019 and 0.04 is not below 0.02
     md = markdown_report({"gold": res}, {"gold": verdict})
     assert "| grid | 1000 | 60.0 | 2.00e-02 | 1.00 |" in md and md.rstrip().endswith(verdict)
+
+
+def test_a_cell_that_fails_is_recorded_with_its_error_and_the_command_says_so(
+    files: dict[str, Any], tmp_path: Path, capsys
+) -> None:
+    # Every direction beyond the rig's 85 deg zenith limit: the run cannot start, before anything is opened.
+    bad = sweep_file(tmp_path / "grazing.toml", "grazing", [88.0, 89.0])
+    argv = ["batch", "study", "--rig", *files["rigs"], "--sweep", str(bad), "--seeds", "1", "--out",
+            str(tmp_path / "out"), "--serial", "--quiet"]  # fmt: skip
+    assert cli.main(argv) == 2
+    captured = capsys.readouterr()
+    assert captured.out.splitlines()[-1] == "1 cells: 0 run, 0 already done (skipped), 1 failed"
+    assert f"{bad}: no reachable point on this rig" in captured.err
+    assert pq.read_table(tmp_path / "out" / "outcomes.parquet").num_rows == 0
