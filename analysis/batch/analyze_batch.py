@@ -6,10 +6,10 @@ task records in ``OUT/.tasks``. Inputs whose record says done on the same finger
 stopped in any way (Ctrl-C, a lost cluster, a killed client) and started again does only what is left;
 failed inputs are tried again. The catalogue is written at the end, also when the batch is interrupted.
 
-Paths: on a local cluster the inputs are passed as given (the workers share this process's working
-directory), so ``fit.json`` records the same source string as ``gonio analyze`` would. An existing cluster's
-workers may run elsewhere: there every path is made absolute, and must be the same path on every machine (a
-shared file system).
+Paths: on the local cluster a batch starts itself, the inputs are passed as given (the workers share this
+process's working directory), so ``fit.json`` records the same source string as ``gonio analyze`` would. On
+an existing cluster (``--scheduler``, or a ``client`` passed in) the workers may run elsewhere: every path is
+made absolute, and must be the same path on every machine (a shared file system).
 """
 
 from __future__ import annotations
@@ -126,7 +126,8 @@ def _run(inputs: list[BatchInput], root: Path, s: AnalyzeSettings, cluster: Clus
             for key, res in got.items():
                 if isinstance(res, BaseException):
                     write_record(root, key, _killed(by_key[key], prints[key], res))
-                (result.analysed if isinstance(res, dict) and res.get("status") == "done" else []).append(key)
+                elif res.get("status") == "done":
+                    result.analysed.append(key)
     finally:
         sweep_partials(root)
         # A record of other inputs or settings (an older batch into this OUT) says nothing about this one.

@@ -17,7 +17,7 @@ import os
 import sys
 import uuid
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from tqdm import tqdm
@@ -52,7 +52,6 @@ class Task:
     fn: Callable[..., Any]
     args: tuple[Any, ...] = ()
     priority: int = 0
-    kwargs: dict[str, Any] = field(default_factory=dict)
 
 
 def cores() -> int:
@@ -118,7 +117,7 @@ def run_tasks(
     from distributed import as_completed
 
     token = uuid.uuid4().hex[:8]  # keys unique on a shared scheduler, and across restarts of one batch
-    futures = {client.submit(t.fn, *t.args, key=f"{t.key}-{token}", pure=False, priority=t.priority, **t.kwargs): t.key
+    futures = {client.submit(t.fn, *t.args, key=f"{t.key}-{token}", pure=False, priority=t.priority): t.key
                for t in tasks}  # fmt: skip
     results: dict[str, Any] = {}
     failed = 0
