@@ -91,6 +91,13 @@ def noop() -> None:
     """A task that does nothing: what is left is Dask's own cost."""
 
 
+def rss_bytes() -> int:
+    """Resident memory of this (worker) process, bytes."""
+    import psutil  # installed with distributed
+
+    return int(psutil.Process().memory_info().rss)
+
+
 def busy_s() -> float:
     """CPU seconds the whole machine has spent busy since boot (all processes, from /proc/stat); NaN elsewhere."""
     try:
@@ -163,6 +170,7 @@ def main(argv: list[str] | None = None) -> int:
         w = time.perf_counter()
         client.gather([client.submit(noop, pure=False) for _ in range(args.noop)])
         noop_s = (time.perf_counter() - w) / args.noop
+        rss_mb = max(client.run(rss_bytes).values()) / 1e6
     load_after = os.getloadavg()
 
     n, workers = len(runs), args.workers
@@ -186,6 +194,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{sum(t['report_s'] for t in tasks) / sum(task_wall):.0%}"],
              ["cluster start (s)", f"{start_s:.1f}"], ["worker warm-up (s), serial warm-up (s)",
                                                         f"{worker_warm_s:.1f}, {serial_warm_s:.1f}"],
+             ["largest worker's resident memory after the batch (MB)", f"{rss_mb:.0f}"],
              ["input read / outputs written per task (MB)", f"{in_bytes / 1e6:.2f} / {out_bytes / 1e6:.2f}"],
              ["other processes' CPU during the serial / the batch phase (cores)",
               f"{others_serial:.2f} / {others_batch:.2f}"],

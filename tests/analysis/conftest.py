@@ -6,11 +6,12 @@ from typing import Any
 import pytest
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def cluster() -> Iterator[Any]:
     """The local cluster a batch starts by default, sized to 2 single-threaded workers, its dashboard on a free port.
 
-    Shared by the batch and study tests (starting one costs each worker the imports of the analysis stack).
+    Shared by the batch and study tests (starting one costs each worker the imports of the analysis stack), and
+    closed after them, so idle workers do not sit beside the rest of the suite.
     """
     from analysis.batch.cluster import ClusterSettings, cluster_client
 
