@@ -175,7 +175,8 @@ def _hold_when_written(key: str, stage: str, *, victim: str, gate: str) -> None:
     g = Path(gate)
     if key != victim or stage != "written" or (g / "killed").exists():
         return
-    (g / "pid").write_text(str(os.getpid()))
+    (g / "pid.tmp").write_text(str(os.getpid()))
+    (g / "pid.tmp").rename(g / "pid")  # whole, or not there
     deadline = time.monotonic() + TIMEOUT_S
     while not (g / "killed").exists() and time.monotonic() < deadline:
         time.sleep(0.05)  # a barrier: released by the test, which kills this process first
@@ -187,6 +188,7 @@ def test_a_worker_killed_mid_batch_leaves_every_input_done(
     gate, out = tmp_path / "gate", tmp_path / "out"
     gate.mkdir()
     killed: list[int] = []
+    seen: list[tuple[list[str], bool]] = []  # what was on disk at the kill (asserted below, not in the thread)
 
     def kill_when_staged() -> None:
         deadline = time.monotonic() + TIMEOUT_S
@@ -194,8 +196,7 @@ def test_a_worker_killed_mid_batch_leaves_every_input_done(
             time.sleep(0.05)
         if (gate / "pid").exists():
             pid = int((gate / "pid").read_text())
-            staged = [p.name for p in out.iterdir() if p.name.startswith(".tmp-gold-")]
-            assert staged and not (out / "gold").exists()  # written, but only under a temporary name
+            seen.append(([p.name for p in out.iterdir() if p.name.startswith(".tmp-gold-")], (out / "gold").exists()))
             os.kill(pid, signal.SIGKILL)
             killed.append(pid)
         (gate / "killed").touch()
@@ -210,6 +211,8 @@ def test_a_worker_killed_mid_batch_leaves_every_input_done(
         (gate / "killed").touch()
         killer.join(TIMEOUT_S)
     assert len(killed) == 1, "the victim's worker never reported in"
+    [(staged, in_place)] = seen
+    assert len(staged) == 1 and not in_place  # killed with its outputs written, but only under a temporary name
     assert sorted(result.analysed) == ["gold", "paint"] and not result.failed
     record = json.loads((out / TASKS / "gold.json").read_text())
     assert record["status"] == "done" and not record["worker"].endswith(f":{killed[0]}")  # run again elsewhere
