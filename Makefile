@@ -33,6 +33,7 @@ bench: $(STAMP)
 	$(BIN)/python -m bench.sweep
 	$(BIN)/python -m bench.fit
 	$(BIN)/python -m bench.batch
+	$(BIN)/python -m bench.camera_calibration
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

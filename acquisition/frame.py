@@ -43,6 +43,9 @@ class Frame:
         Identity of the camera (make, model, serial where known).
     source:
         Where the frame came from (file path), for error messages; None for frames straight from memory.
+    origin_xy:
+        The sensor pixel (x, y) that pixel (0, 0) of ``data`` is: (0, 0) for a full frame, the window's
+        offset for a camera reading out a window (ROI readout). Per-pixel corrections (a flat field) use it.
     """
 
     data: npt.NDArray[np.generic]
@@ -56,6 +59,7 @@ class Frame:
     camera_id: str = "unknown"
     source: str | None = None
     extra: dict[str, object] = field(default_factory=dict, compare=False)
+    origin_xy: tuple[int, int] = (0, 0)
 
     def __post_init__(self) -> None:
         where = f"frame from {self.source}" if self.source else f"frame from {self.camera_id}"

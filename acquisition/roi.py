@@ -20,14 +20,16 @@ Flagged pixels (``flags`` non-zero: e.g. saturated in every frame of the bracket
 silently: ``on_flagged="exclude"`` (default) leaves them out and counts them in ``n_flagged``;
 ``"lower_bound"`` keeps their (clipped) values, without a noise term, and marks the reading
 ``lower_bound=True``; ``"raise"`` refuses the reading. With an ``HdrImage`` pass ``flags=img.saturated``
-(not the whole bit field: excluding the pixels flagged DARK would bias a dim ROI's mean upwards).
+(not the whole bit field: excluding the pixels flagged DARK would bias a dim ROI's mean upwards), and
+``dark=img.dark``: dark pixels stay in the mean but are counted (``n_dark``), and a reading whose ROI is
+mostly dark, or whose mean is not detected above its error, says so (``RoiReading.dark``).
 Unflagged pixels with non-finite radiance or variance are an error, except that ``error_model="spatial"``
 accepts unknown (NaN) variances, as the 8-bit merge path reports.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -37,6 +39,8 @@ Box = tuple[int, int, int, int]
 """A pixel box ``(x0, y0, x1, y1)``: columns x0..x1-1 and rows y0..y1-1 (half-open, like slices)."""
 
 FlaggedPolicy = Literal["exclude", "lower_bound", "raise"]
+#: A reading whose mean is not above this many standard errors is not a detection (``RoiReading.dark``).
+DARK_SIGMA = 3.0
 ErrorModel = Literal["max", "propagated", "spatial"]
 
 FloatArray = npt.NDArray[np.float64]
@@ -74,6 +78,9 @@ class RoiReading:
         True when flagged (saturated) pixels were kept with their clipped values: the true mean is higher.
     error_model:
         Which estimate ``std_error`` is: ``"max"``, ``"propagated"`` or ``"spatial"``.
+    n_dark:
+        Pixels inside the ROI marked dark (``dark=``, e.g. an HdrImage's ``dark``), per channel; they are in
+        the mean (leaving them out would bias a dim ROI upwards).
     """
 
     mean: FloatArray
@@ -85,6 +92,17 @@ class RoiReading:
     n_flagged: IntArray
     lower_bound: bool
     error_model: ErrorModel
+    n_dark: IntArray = field(default_factory=lambda: np.zeros((), dtype=np.int64))
+
+    @property
+    def dark(self) -> bool:
+        """Whether a channel is dark: most of its pixels flagged dark, or its mean within 3 errors of zero."""
+        n_dark = np.atleast_1d(self.n_dark)
+        used = np.atleast_1d(self.n_used)
+        mean, se = np.atleast_1d(self.mean), np.atleast_1d(self.std_error)
+        with np.errstate(invalid="ignore"):
+            undetected = ~(mean > DARK_SIGMA * se)
+        return bool(np.any(2 * n_dark > used) or np.any(undetected))
 
     @property
     def scatter_ratio(self) -> FloatArray:
@@ -171,6 +189,7 @@ def reduce_roi(
     *,
     on_flagged: FlaggedPolicy = "exclude",
     error_model: ErrorModel = "max",
+    dark: npt.ArrayLike | None = None,
 ) -> RoiReading:
     """Mean radiance (counts/s) of the ROI per channel with its standard error (counts/s); see the module doc.
 
@@ -201,6 +220,13 @@ def reduce_roi(
         sel = _select(fl != 0, roi, "flags") != 0
         flagged = np.broadcast_to(sel, x.shape) if sel.shape[1] == 1 else sel
     n_flagged = flagged.sum(axis=0)
+    n_dark = np.zeros(n_ch, dtype=np.int64)
+    if dark is not None:
+        dk = np.asarray(dark)
+        if dk.shape not in (rad.shape[:2], rad.shape):
+            raise RoiError(f"dark has shape {dk.shape} but radiance has shape {rad.shape}: expected (H, W) or the same")
+        sel_dark = _select(dk != 0, roi, "dark") != 0
+        n_dark = np.broadcast_to(sel_dark, x.shape).sum(axis=0) if sel_dark.shape[1] == 1 else sel_dark.sum(axis=0)
     if on_flagged == "raise" and n_flagged.any():
         raise RoiError(f"{int(n_flagged.max())} of {n_pixels} ROI pixels are flagged (on_flagged='raise')")
     used = ~flagged if on_flagged == "exclude" else np.ones_like(flagged)
@@ -251,6 +277,7 @@ def reduce_roi(
         n_flagged=_per_channel_count(n_flagged, one),
         lower_bound=lower_bound,
         error_model=error_model,
+        n_dark=_per_channel_count(n_dark, one),
     )
 
 

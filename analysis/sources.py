@@ -16,6 +16,7 @@ from analysis.result import AnalysisError, Log, Reference, SourceSummary
 from model.fit.samples import FitError, Samples
 from model.merl import MerlFormatError, MerlTable, read_merl
 from rig.run.config import material_from
+from rig.run.journal import check_records
 from rig.run.session import configs_of, reference_settings
 from rig.run.store import JOURNAL, RunStore, RunStoreError
 from rig.run.table import build_rows
@@ -45,6 +46,7 @@ def load_run(path: Path, log: Log, errors: str = "total") -> tuple[SourceSummary
         status = store.status()
         rig, sweep = configs_of(store)
         records = store.records()
+        check_records(records, path / JOURNAL)
     except (RunStoreError, ValueError, KeyError) as exc:
         raise AnalysisError(f"{path}: not a readable run directory: {exc}") from exc
     table = path / "samples.csv"

@@ -213,6 +213,7 @@ def main(argv: list[str] | None = None) -> int:
     print(format_table(p_headers, projection))
     if not args.no_write:
         body = (
+            "## Batch analysis on a Dask cluster (`bench/batch.py`)\n\n"
             f"Measured {datetime.date.today()} on {machine_description()}; `{command}`. The machine was shared "
             f"(1-minute load average {load_before[0]:.1f} before and {load_after[0]:.1f} after, on "
             f"{os.cpu_count()} cores, and the other processes' CPU during each phase is in the second table): wall "

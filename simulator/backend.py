@@ -27,7 +27,7 @@ def open_simulated(rig: RigConfig) -> Iterator[Instruments]:
         link = sim.open_link(options=dynamixel_options(rig))
         assert sim.camera is not None
         target = sim.reference if rig.file.reference.kind == "simulated" else None
-        yield Instruments(link, sim.camera, sim.clock, target)
+        yield Instruments(link, sim.camera, sim.clock, target, sim.flat_source)
 
 
 SIMULATED = RigBackend(

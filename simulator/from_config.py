@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from acquisition.noise import SensorNoise
 from rig.run.config import ConfigError, RigConfig, material_from
+from simulator.camera.pixels import PixelResponse
 from simulator.render.spec import CameraSpec, LightSpec
 from simulator.rig import SimRigSpec
 
@@ -14,11 +15,16 @@ def spec_from(rig: RigConfig) -> SimRigSpec:
     if f.link.kind != "simulated":
         raise ConfigError(f"{rig.path}: link.kind = {f.link.kind!r}: the simulated rig needs 'simulated'")
     cam = f.camera
-    try:
-        noise = SensorNoise(**cam.noise.model_dump())
-    except ValueError as exc:
-        raise ConfigError(f"{rig.path}: camera.noise: {exc}") from None
     sim = f.simulation
+    # The sensor as it is ([simulation.sensor]), each key it leaves out as the controller assumes ([camera.noise]).
+    truth = {k: v for k, v in sim.sensor.model_dump().items()
+             if k in SensorNoise.__dataclass_fields__ and v is not None}  # fmt: skip
+    try:
+        noise = SensorNoise(**{**cam.noise.model_dump(), **truth})
+    except ValueError as exc:
+        raise ConfigError(f"{rig.path}: simulation.sensor: {exc}") from None
+    response = PixelResponse(vignetting=sim.sensor.vignetting, prnu_rms=sim.sensor.prnu_rms,
+                             nonlinearity=sim.sensor.nonlinearity, seed=sim.seed)  # fmt: skip
     albedo = f.reference.albedo
     return SimRigSpec(
         geometry=rig.geometry,
@@ -32,4 +38,6 @@ def spec_from(rig: RigConfig) -> SimRigSpec:
         time_scale=sim.time_scale,
         seed=sim.seed,
         reference_albedo=albedo if isinstance(albedo, float) else (albedo[0], albedo[1], albedo[2]),
+        camera_output=sim.camera_output,
+        response=response,
     )

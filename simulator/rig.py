@@ -13,8 +13,11 @@ faster than real time, for external clients. Only one simulated rig runs per pro
 
 from __future__ import annotations
 
+import tempfile
 import threading
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -26,10 +29,12 @@ from model.mitsuba.materials import MitsubaMaterial, to_mitsuba
 from rig.instrument.axis import Axis
 from rig.instrument.clock import Clock, ManualClock, ScaledClock
 from rig.instrument.geometry import RigGeometry
-from rig.instrument.kinematics import Joints, world_pose
+from rig.instrument.kinematics import Joints, RigPose, world_pose
 from rig.instrument.links.dynamixel import DynamixelLink, DynamixelOptions
 from rig.run.config import default_axes
-from simulator.camera.simulated import CameraOptics, SimulatedCamera
+from simulator.camera.pixels import PixelResponse
+from simulator.camera.simulated import CameraOptics, SensorPatch, SimulatedCamera
+from simulator.camera.view import SimulatedFlatSource, roi_patch
 from simulator.dynamixel.bus import VirtualDynamixelBus
 from simulator.render.renderer import RadianceRenderer
 from simulator.render.spec import CameraSpec, LightSpec
@@ -72,6 +77,13 @@ class SimRigSpec:
         Albedo of the Lambertian reference tile that ``rig.run.reference`` swaps in for the sample.
     light_drift_per_s:
         Relative change of the light's intensity per second of rig time (0: a stable lamp), for drift tests.
+    camera_output:
+        "linear" (demosaiced counts), "raw" (a CFA mosaic) or "dng" (a mosaic written as a DNG file and read
+        back through rawpy, the path a real camera's RAW files take); see ``simulator.camera.simulated``.
+    response:
+        The sensor's hidden vignetting, pixel response non-uniformity and non-linearity.
+    dng_dir:
+        Where "dng" frames are written and kept; None: a temporary folder, each file removed once read.
     """
 
     geometry: RigGeometry = field(default_factory=RigGeometry)
@@ -87,6 +99,9 @@ class SimRigSpec:
     seed: int = 0
     reference_albedo: float | tuple[float, float, float] = 0.99
     light_drift_per_s: float = 0.0
+    camera_output: Literal["linear", "raw", "dng"] = "linear"
+    response: PixelResponse = field(default_factory=PixelResponse)
+    dng_dir: Path | None = None
 
     def resolved_axes(self) -> tuple[Axis, ...]:
         """The axes, defaulted from the geometry, checked to cover every joint of the layout."""
@@ -115,6 +130,8 @@ class SimulatedRig:
         self._reading: int | None = None
         self._shown: MitsubaMaterial = self.material
         self._reference_material = to_mitsuba(Lambert(self.spec.reference_albedo))
+        self.flat_source = SimulatedFlatSource(self.spec.camera.resolution, self.spec.noise, self.spec.optics)
+        self._dng_tmp: tempfile.TemporaryDirectory[str] | None = None
 
     def start(self) -> SimulatedRig:
         """Bring up the virtual bus and the camera; refuses if another simulated rig runs in this process."""
@@ -130,10 +147,16 @@ class SimulatedRig:
             bus = VirtualDynamixelBus(ids, self.spec.baudrate, self.clock, seed=self.spec.seed, positions=positions)
             bus.start()
             self.bus = bus
+            dng_dir = self.spec.dng_dir
+            if self.spec.camera_output == "dng" and dng_dir is None:
+                self._dng_tmp = tempfile.TemporaryDirectory(prefix="gonio-sim-dng-")
+                dng_dir = Path(self._dng_tmp.name)
             self.camera = SimulatedCamera(
-                self._radiance, noise=self.spec.noise, optics=self.spec.optics, clock=self.clock,
+                self._patch, noise=self.spec.noise, optics=self.spec.optics, clock=self.clock,
                 seed=self.spec.seed, fixed_pattern_dn=self.spec.fixed_pattern_dn, state_key=self._state_key,
                 camera_id=f"gonio simulated camera ({self.spec.material.__class__.__name__}, {self.material.plugin})",
+                kind="linear" if self.spec.camera_output == "linear" else "raw", response=self.spec.response,
+                dng_dir=dng_dir if self.spec.camera_output == "dng" else None, keep_dng=self.spec.dng_dir is not None,
             )  # fmt: skip
             _active.append(self)
         return self
@@ -151,6 +174,9 @@ class SimulatedRig:
                 self.camera.close()
             if self.bus is not None:
                 self.bus.close()
+            if self._dng_tmp is not None:
+                self._dng_tmp.cleanup()
+                self._dng_tmp = None
             if self in _active:
                 _active.remove(self)
 
@@ -192,16 +218,29 @@ class SimulatedRig:
     def _state_key(self) -> tuple[object, ...]:
         assert self.bus is not None
         ticks = tuple(round(self.bus.servo(int(a.address)).physical_position_ticks(), 3) for a in self.axes)
-        key = (ticks, repr(self._showing))
+        key: tuple[object, ...] = (ticks, repr(self._showing))
+        if self.flat_source.state != "off":
+            key = (*key, self.flat_source.state)
         return key if self._reading is None else (*key, self._reading)
 
     def radiance_now(self, full_frame: bool = False) -> npt.NDArray[np.float64]:
         """Radiance (W/(m^2 sr)) the camera sees now (the ROI, or the whole frame), from the servos' physical pose."""
         return self._radiance(full_frame)
 
-    def _radiance(self, full_frame: bool = False) -> npt.NDArray[np.float64]:
+    def _patch(self) -> SensorPatch:
+        """What the camera sees: the flat-field source while one is in use, else the rendered ROI's window."""
+        if self.flat_source.state != "off":
+            return self.flat_source.patch()
         pose = world_pose(self.spec.geometry, self.joints_now())
-        crop = None if full_frame else self.renderer.roi(pose)
+        return roi_patch(lambda box: self._radiance(crop=box, pose=pose), self.renderer.roi(pose),
+                         self.spec.camera.resolution, self.spec.camera_output == "dng")  # fmt: skip
+
+    def _radiance(
+        self, full_frame: bool = False, crop: tuple[int, int, int, int] | None = None, pose: RigPose | None = None
+    ) -> npt.NDArray[np.float64]:
+        pose = pose if pose is not None else world_pose(self.spec.geometry, self.joints_now())
+        if crop is None and not full_frame:
+            crop = self.renderer.roi(pose)
         self.renders += 1
         image = self.renderer.render(pose, self._shown, crop=crop, key=repr(self._showing))
         if self.spec.light_drift_per_s:

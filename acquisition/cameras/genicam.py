@@ -1,9 +1,13 @@
 """Machine-vision cameras (GenICam: GigE Vision, USB3 Vision; e.g. Basler, FLIR, Allied Vision) through
 harvesters and the vendor's GenTL producer (.cti file); extra ``gonio[genicam]``.
 
-UNTESTED WITHOUT HARDWARE: the calls follow harvesters 1.4's documented API (``Harvester.add_file``,
-``update``, ``create``, ``remote_device.node_map``, ``fetch``) and the GenICam SFNC feature names
-(``ExposureTime`` in microseconds, ``Gain`` in dB, ``PixelFormat``). The pixel-format helper is tested.
+Tested against a real GenTL stack: harvesters with the ``viky.cti`` producer that the ``genicam`` wheel
+ships (a simulated "Viky" camera of three devices, RGBa8 or Mono8, 400 x 400, with no exposure or gain
+feature): discovery, opening by serial number and index, pixel formats, acquisition and buffers, and a
+camera without exposure control (unconfirmed frames, or ExposureUnconfirmedError with ``strict``).
+Untested without hardware: writing ``ExposureTime`` (microseconds) and ``Gain`` (dB) on a camera that has
+them (the SFNC names; older Basler models' ``ExposureTimeAbs``), Bayer and 10/12/16-bit formats from a
+device, and ``BlackLevel``.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from acquisition.cameras import CameraError, ClockLike, RealTimeClock, import_backend
+from acquisition.cameras import CameraError, ClockLike, ExposureUnconfirmedError, RealTimeClock, import_backend
 from acquisition.frame import ExposureSettings, Frame, FrameError, FrameKind
 
 _BAYER = {"RG": "RGGB", "GR": "GRBG", "GB": "GBRG", "BG": "BGGR"}
@@ -33,10 +37,10 @@ def parse_pixel_format(name: str) -> tuple[FrameKind, str | None, int]:
         if match.group(2):
             return "raw", _BAYER[match.group(2)], bits
         return "linear", None, bits
-    if name in ("RGB8", "BGR8", "RGB8Packed", "BGR8Packed"):
+    if name in ("RGB8", "BGR8", "RGB8Packed", "BGR8Packed", "RGBa8", "BGRa8"):
         return "8bit", None, 8
     raise ValueError(
-        f"PixelFormat {name!r} is not supported (BayerXX8/10/12/16, Mono8/10/12/16, RGB8, BGR8; "
+        f"PixelFormat {name!r} is not supported (BayerXX8/10/12/16, Mono8/10/12/16, RGB8, BGR8, RGBa8, BGRa8; "
         "packed formats need unpacking in the GenTL producer)"
     )
 
@@ -59,8 +63,13 @@ class GenICamCamera:
         discard_frames: int = 2,
         timeout_s: float = 5.0,
         clock: ClockLike | None = None,
+        pixel_format: str | None = None,
+        strict: bool = False,
     ) -> None:
         core = import_backend("harvesters.core", "genicam", "GenICam (harvesters)")
+        if not os.path.isfile(os.fspath(cti_file)):
+            raise CameraError(f"GenICam: GenTL producer {os.fspath(cti_file)!r} is not a file (the vendor's .cti)")
+        self.strict = strict
         self.clock: ClockLike = clock if clock is not None else RealTimeClock()
         self.timeout_s = timeout_s
         self.discard_frames = discard_frames
@@ -78,17 +87,34 @@ class GenICamCamera:
             raise CameraError(f"GenICam: cannot open camera {serial_number or index} via {cti_file}: {exc}") from exc
         nm = self._ia.remote_device.node_map
         names = ("DeviceVendorName", "DeviceModelName", "DeviceSerialNumber")
-        self._identity = " ".join(str(getattr(nm, n).value) for n in names if hasattr(nm, n)) or "GenICam camera"
+        self._identity = " ".join(str(getattr(nm, n).value) for n in names if hasattr(nm, n))
+        if not self._identity:
+            # Not every device has the SFNC's Device* features; the producer's device list names it all the same.
+            info = self._ia.device.module
+            parts = (getattr(info, k, "") for k in ("vendor", "model", "serial_number"))
+            self._identity = " ".join(str(p) for p in parts if p) or "GenICam camera"
         for auto in ("ExposureAuto", "GainAuto"):
             if hasattr(nm, auto):
                 getattr(nm, auto).value = "Off"
+        if pixel_format is not None:
+            choices = tuple(nm.PixelFormat.symbolics) if hasattr(nm, "PixelFormat") else ()
+            if pixel_format not in choices:
+                self.close()
+                raise CameraError(f"GenICam {self._identity}: PixelFormat {pixel_format!r} not offered; "
+                                  f"the camera offers {', '.join(choices) or 'none'}")  # fmt: skip
+            nm.PixelFormat.value = pixel_format
         self._ia.start()
-        self._applied = ExposureSettings(self._read_exposure_s(), self._read_gain())
+        self._confirmed = self._has_exposure()
+        self._applied = ExposureSettings(self._read_exposure_s() if self._confirmed else 0.01, self._read_gain())
 
     @property
     def identity(self) -> str:
         """Vendor, model and serial number as the device reports them."""
         return self._identity
+
+    def _has_exposure(self) -> bool:
+        nm = self._ia.remote_device.node_map
+        return any(hasattr(nm, n) for n in ("ExposureTime", "ExposureTimeAbs"))
 
     def _exposure_node(self) -> Any:
         nm = self._ia.remote_device.node_map
@@ -109,6 +135,14 @@ class GenICamCamera:
         """Write ExposureTime (microseconds) and Gain (dB from the linear ``gain``); return the values read back."""
         if not (math.isfinite(exposure_s) and exposure_s > 0):
             raise ValueError(f"GenICam {self.identity}: exposure {exposure_s!r} s is not a positive number")
+        if not self._has_exposure():
+            if self.strict:
+                raise ExposureUnconfirmedError(f"GenICam {self.identity}: the camera has no ExposureTime feature; "
+                                               f"cannot set {exposure_s:.6g} s")  # fmt: skip
+            # Like a file source: the request is recorded and frames say it is unconfirmed.
+            self._pending_discard = self.discard_frames
+            self._applied = ExposureSettings(float(exposure_s), self._read_gain())
+            return self._applied
         self._exposure_node().value = exposure_s * 1e6
         if gain is not None:
             nm = self._ia.remote_device.node_map
@@ -131,13 +165,18 @@ class GenICamCamera:
             height, width = int(component.height), int(component.width)
             # the buffer returns to the producer's pool when the with-block ends: copy first
             data = np.array(component.data, copy=True)
-            device_ts = getattr(buffer, "timestamp_ns", None)
+            try:
+                device_ts = buffer.timestamp_ns
+            except Exception:  # GenTL raises NotAvailable where the device keeps no timestamps (viky.cti)
+                device_ts = None
         try:
             kind, cfa, bits = parse_pixel_format(pixel_format)
         except ValueError as exc:
             raise FrameError(f"GenICam {self.identity}: {exc}") from exc
-        channels = 3 if kind == "8bit" else 1
-        data = data.reshape(height, width, channels) if channels == 3 else data.reshape(height, width)
+        channels = data.size // (height * width)
+        data = data.reshape(height, width, channels) if channels > 1 else data.reshape(height, width)
+        if channels == 4:
+            data = np.ascontiguousarray(data[..., :3])  # RGBa8: the alpha plane is padding
         if pixel_format.startswith("BGR"):
             data = data[..., ::-1].copy()
         return Frame(
@@ -150,7 +189,8 @@ class GenICamCamera:
             cfa_pattern=cfa,
             timestamp_s=self.clock.now(),
             camera_id=self.identity,
-            extra={"pixel_format": pixel_format, "device_timestamp_ns": device_ts},
+            extra={"pixel_format": pixel_format, "device_timestamp_ns": device_ts,
+                   "exposure_confirmed": self._has_exposure()},
         )
 
     def close(self) -> None:

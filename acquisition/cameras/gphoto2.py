@@ -1,8 +1,11 @@
 """Still cameras over USB (PTP) through libgphoto2 and its Python binding; extra ``gonio[gphoto2]``.
 
-UNTESTED WITHOUT HARDWARE: the calls follow python-gphoto2's documented object API (``gp.Camera``,
-``get_config``/``set_config``, ``capture``, ``file_get``), but no camera was available when this was
-written. The pure helpers (shutter-speed parsing, nearest choice) are tested.
+Tested against libgphoto2 itself (the python-gphoto2 wheel's, 2.5.34) through its "Directory Browse"
+driver on a ``disk:`` port, which serves a folder as a camera: choosing a camera by port and model,
+downloading a file (``file_get``), decoding and checking it, deleting it from the "card", and the errors
+of a driver that has no settings or no remote capture. UNTESTED WITHOUT A CAMERA (no driver that needs no
+camera captures or has settings): ``capture`` on a real camera and setting shutter speed and ISO through
+``get_config``/``set_config``. The pure helpers (shutter-speed parsing, nearest choice) are tested.
 
 The camera must be set to save RAW only (not RAW+JPEG: ``capture`` then reports only one of the two
 files) and to manual exposure mode (M), so that shutter speed and ISO are settable.
@@ -83,6 +86,8 @@ class GPhoto2Camera:
         exposure_rtol: float = DEFAULT_EXPOSURE_RTOL,
         shutter_config: tuple[str, ...] = ("shutterspeed", "shutterspeed2", "exposuretime"),
         iso_config: tuple[str, ...] = ("iso", "isospeed"),
+        port: str | None = None,
+        model: str | None = None,
     ) -> None:
         gp = import_backend("gphoto2", "gphoto2", "gphoto2")
         self._gp = gp
@@ -97,6 +102,8 @@ class GPhoto2Camera:
             download_dir = self._tmp.name
         self.download_dir = Path(download_dir)
         self._camera: Any = gp.Camera()
+        if port is not None or model is not None:
+            self._choose(gp, port, model)
         try:
             self._camera.init()
         except gp.GPhoto2Error as exc:
@@ -106,6 +113,31 @@ class GPhoto2Camera:
         except gp.GPhoto2Error:
             self._identity = "gphoto2 camera"
         self._applied: ExposureSettings | None = None
+
+    def _choose(self, gp: Any, port: str | None, model: str | None) -> None:
+        """Use the camera on ``port`` ("usb:001,004", "disk:/folder") of driver ``model`` instead of autodetection."""
+        if port is not None:
+            ports = gp.PortInfoList()
+            ports.load()
+            try:
+                index = ports.lookup_path(port)
+            except gp.GPhoto2Error:
+                index = -1
+            if index < 0:
+                raise CameraError(f"gphoto2: no port {port!r} (libgphoto2 knows "
+                                  f"{', '.join(ports[i].get_path() for i in range(len(ports)))})")  # fmt: skip
+            self._camera.set_port_info(ports[index])
+        if model is not None:
+            abilities = gp.CameraAbilitiesList()
+            abilities.load()
+            try:
+                index = abilities.lookup_model(model)
+            except gp.GPhoto2Error:
+                index = -1
+            if index < 0:
+                raise CameraError(f"gphoto2: libgphoto2 has no camera model {model!r} (as `gphoto2 --list-cameras` "
+                                  "names them)")  # fmt: skip
+            self._camera.set_abilities(abilities[index])
 
     @property
     def identity(self) -> str:
@@ -138,7 +170,10 @@ class GPhoto2Camera:
                 applied_gain = iso / 100.0
             self._camera.set_config(config)
         except gp.GPhoto2Error as exc:
-            raise CameraError(f"gphoto2 {self.identity}: cannot set exposure {exposure_s:.6g} s: {exc}") from exc
+            unsupported = exc.code == gp.GP_ERROR_NOT_SUPPORTED
+            hint = " (its driver has no settings: it cannot set an exposure)" if unsupported else ""
+            message = f"gphoto2 {self.identity}: cannot set exposure {exposure_s:.6g} s: {exc}{hint}"
+            raise CameraError(message) from exc
         self._applied = ExposureSettings(applied_s, applied_gain)
         return self._applied
 
@@ -147,13 +182,22 @@ class GPhoto2Camera:
         gp = self._gp
         try:
             path = self._camera.capture(gp.GP_CAPTURE_IMAGE)
-            target = self.download_dir / path.name
-            camera_file = self._camera.file_get(path.folder, path.name, gp.GP_FILE_TYPE_NORMAL)
+        except gp.GPhoto2Error as exc:
+            hint = " (its driver cannot capture remotely)" if exc.code == gp.GP_ERROR_NOT_SUPPORTED else ""
+            raise CameraError(f"gphoto2 {self.identity}: capture failed: {exc}{hint}") from exc
+        return self.download(path.folder, path.name)
+
+    def download(self, folder: str, name: str) -> Frame:
+        """Download the file ``folder``/``name`` from the camera, decode it and check its exposure (if one was set)."""
+        gp = self._gp
+        try:
+            target = self.download_dir / name
+            camera_file = self._camera.file_get(folder, name, gp.GP_FILE_TYPE_NORMAL)
             camera_file.save(str(target))
             if not self.keep_on_camera:
-                self._camera.file_delete(path.folder, path.name)
+                self._camera.file_delete(folder, name)
         except gp.GPhoto2Error as exc:
-            raise CameraError(f"gphoto2 {self.identity}: capture or download failed: {exc}") from exc
+            raise CameraError(f"gphoto2 {self.identity}: download of {folder}/{name} failed: {exc}") from exc
         expected = self._applied.exposure_s if self._applied else None
         frame = read_frame(target, expected_exposure_s=expected, rtol=self.exposure_rtol, timestamp_s=self.clock.now())
         if frame.camera_id == "unknown":

@@ -29,10 +29,16 @@ class CameraBackend:
         open: ``open(settings, clock)`` returns an open :class:`acquisition.frame.Camera`; ``settings`` is
             the rig file's validated ``[camera]`` table as a mapping, ``clock`` the run's clock.
         description: one line for listings and error messages.
+        keys: the ``[camera]`` keys this backend reads beyond the common ones (exposure range, ROI, noise,
+            calibration, flat field); a rig file that sets another backend's key is an error naming it.
+            ``"options"`` admits a free ``[camera.options]`` table, for a lab's backend with settings of its own.
+        required: those of ``keys`` a rig file must give.
     """
 
     open: Callable[[Mapping[str, Any], ClockLike], Camera]
     description: str = ""
+    keys: tuple[str, ...] = ()
+    required: tuple[str, ...] = ()
 
 
 def _entry_points() -> dict[str, EntryPoint]:

@@ -43,7 +43,7 @@ def _merge_kernel(with_maps: bool, inverse_variance: bool, parallel: bool = True
     @numba.njit(parallel=parallel, **_JIT)
     def kernel(  # pragma: no cover (compiled)
         data: Any, offmaps: Any, off_s: Any, thr_raw: Any, expo: Any, shot: Any, cvar: Any,
-        shortest: int, longest: int, dark_thr: float, rad: Any, var: Any, flags: Any, used: Any,
+        shortest: int, longest: int, dark_thr: float, signal: Any, rad: Any, var: Any, flags: Any, used: Any,
     ) -> None:
         for i in prange(rad.size):
             s = 0.0
@@ -75,15 +75,20 @@ def _merge_kernel(with_maps: bool, inverse_variance: bool, parallel: bool = True
             x = s / e
             xp = x if x > 0.0 else 0.0
             if inverse_variance and m > 1:
+                # Weights from ``signal`` (the neighbours' level), never from this pixel's own frames: weights
+                # that follow a pixel's own noise bias the weighted mean (high at low signal).
+                xs = signal[i] if signal[i] > 0.0 else 0.0
                 wy = 0.0
                 we = 0.0
+                ww = 0.0
                 for k in range(len(data)):
                     if data[k][i] < thr_raw[k]:
-                        w = expo[k] / (xp * shot[k] + cvar[k])
+                        w = expo[k] / (xs * shot[k] + cvar[k])
                         wy += w * (np.float64(data[k][i]) - (offmaps[k][i] if with_maps else off_s[k]))
                         we += w * expo[k]
+                        ww += w * w * (xp * shot[k] + cvar[k])
                 rad[i] = wy / we
-                var[i] = 1.0 / we
+                var[i] = ww / (we * we)
             else:
                 rad[i] = x
                 var[i] = (xp * a + b) / (e * e)
@@ -122,9 +127,19 @@ class _Prepared:
         maps = None if self.offmaps is None else sub(self.offmaps)
         return dataclasses.replace(self, data=sub(self.data), offmaps=maps)
 
-    def run(self, inverse_variance: bool) -> tuple[F32, F32, npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:
-        """Radiance, variance, flags and frames used, flat."""
+    def run(
+        self, inverse_variance: bool, signal: npt.NDArray[np.float64] | None = None
+    ) -> tuple[F32, F32, npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:
+        """Radiance, variance, flags and frames used, flat.
+
+        ``signal`` (counts/s per pixel, flat) sets the inverse-variance weights; None uses each pixel's own
+        first-pass estimate, which is biased at low signal and serves only to predict variances.
+        """
         n = self.data[0].size
+        if inverse_variance and signal is None:
+            signal = self.run(False)[0].astype(np.float64)
+        if signal is None:
+            signal = np.zeros(1)
         rad = np.empty(n, np.float32)
         var = np.empty(n, np.float32)
         flags = np.empty(n, np.uint8)
@@ -133,6 +148,6 @@ class _Prepared:
         maps = self.offmaps if self.offmaps is not None else (np.zeros(1, np.float32),) * len(self.data)
         _merge_kernel(with_maps, inverse_variance, n >= SERIAL_BELOW)(
             self.data, maps, self.off_s, self.thr_raw, self.expo, self.shot, self.cvar, self.shortest, self.longest,
-            self.dark_thr, rad, var, flags, used,
+            self.dark_thr, np.ascontiguousarray(signal, dtype=np.float64), rad, var, flags, used,
         )
         return rad, var, flags, used

@@ -10,11 +10,17 @@ which is the maximum-likelihood estimate when shot noise dominates (for Poisson 
 over the total exposure is sufficient). When read noise matters it is not: a short frame adds a full
 read-noise variance for a sliver of signal. The inverse-variance merge
 
-    X = sum(w_k y_k) / sum(w_k e_k),   w_k = e_k / var_k(X0)       ("inverse_variance")
+    X = sum(w_k y_k) / sum(w_k e_k),   w_k = e_k / var_k(Xn)       ("inverse_variance")
 
-uses the first-pass estimate X0 in the noise model ``SensorNoise.variance_dn2``; its variance,
-``1 / sum(e_k^2 / var_k)``, is the Cramer-Rao bound of the bracket under that model. The sum merge's
-variance is ``sum(var_k) / sum(e_k)^2``. Both are reported per pixel in (counts/s)^2.
+uses the noise model ``SensorNoise.variance_dn2`` at ``Xn``, the first-pass (sum) estimate averaged over the
+pixel's neighbours of the same colour (the 8 at distance 1, or 2 in a raw mosaic), *without the pixel itself*.
+Weights computed from the pixel's own first pass follow its own noise (a frame that read high raises X0,
+which shifts weight between frames) and bias the weighted mean: a uniform 2 counts/s patch read about 1 %
+high. Weights independent of the pixel's own frames leave the estimator unbiased for any weights; the
+neighbours' level is close to the pixel's on anything but a sharp edge, where the weights are merely less
+than optimal. Its variance, ``sum(w_k^2 var_k(X0)) / sum(w_k e_k)^2``, reaches the Cramer-Rao bound of the
+bracket (``1 / sum(e_k^2 / var_k)``) where Xn = X. The sum merge's variance is ``sum(var_k) / sum(e_k)^2``.
+Both are reported per pixel in (counts/s)^2.
 
 Choosing the weighting (``weighting="auto"``): on a strided sample of about 65 000 pixels both variances
 are predicted from X0; the second pass runs when it would lower the standard error by more than
@@ -36,8 +42,10 @@ when its noise is negative. Measured on the default sensor: an ROI exactly at a 
 Flags (:class:`HdrFlag`). ``SATURATED``: saturated in every frame; the radiance is a lower bound (the
 shortest frame's value over its exposure) and the variance is +inf. ``DARK``: the longest frame's signal is
 below ``dark_sigma`` standard deviations of its noise at zero signal; the radiance is still the unbiased
-estimate (it may be negative), and its variance the model's. ``frames_used`` counts the frames that entered
-each pixel's estimate.
+estimate (it may be negative), and its variance the model's. ``BELOW_BLACK`` (with DARK): the estimate is more
+than ``BELOW_BLACK_SIGMA`` standard errors below zero, which no light gives: the frames sit below their black
+level or darks (a wrong black level in the metadata, a dark taken at another temperature). ``frames_used``
+counts the frames that entered each pixel's estimate.
 
 Darks. ``darks`` maps exposure times (s) to a dark Frame, a sequence of dark Frames (averaged; variance
 divided by their number), a master-dark array or a mean dark level (counts, noise neglected). A dark
@@ -98,6 +106,14 @@ class HdrFlag(enum.IntFlag):
     SATURATED = 1
     #: Below ``dark_sigma`` noise sigmas even in the longest frame (undetected): radiance is unreliable.
     DARK = 2
+    #: Below zero by more than ``BELOW_BLACK_SIGMA`` standard errors, which no radiance gives: the frames sit
+    #: below their black level (or their darks), so that level is wrong. Set together with DARK.
+    BELOW_BLACK = 4
+
+
+#: A pixel whose estimate is this many standard errors below zero is flagged BELOW_BLACK (a zero-signal
+#: pixel does so by chance about 3 times in 10 million).
+BELOW_BLACK_SIGMA = 5.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -141,8 +157,13 @@ class HdrImage:
 
     @property
     def dark(self) -> npt.NDArray[np.bool_]:
-        """Pixels dark in every frame."""
-        return (self.flags & HdrFlag.DARK) != 0
+        """Pixels dark in every frame (below black included)."""
+        return (self.flags & (HdrFlag.DARK | HdrFlag.BELOW_BLACK)) != 0
+
+    @property
+    def below_black(self) -> npt.NDArray[np.bool_]:
+        """Pixels that read below black by more than BELOW_BLACK_SIGMA standard errors (a wrong black level)."""
+        return (self.flags & HdrFlag.BELOW_BLACK) != 0
 
 
 def merge_linear(
@@ -243,9 +264,16 @@ def merge_linear(
         use_iv, reason = _decide_weighting(prep)
     else:
         use_iv = weighting == "inverse_variance"
-    rad, var, flags, used = prep.run(use_iv)
-
     shape = frames[0].shape
+    rad, var, flags, used = prep.run(False)
+    if use_iv:
+        step = 2 if kind == "raw" or frames[0].cfa_pattern else 1
+        signal = neighbour_mean(rad.reshape(shape).astype(np.float64), step).reshape(-1)
+        rad, var, flags, used = prep.run(True, signal)
+    with np.errstate(invalid="ignore"):
+        below = (rad < -BELOW_BLACK_SIGMA * np.sqrt(var)) & (flags != HdrFlag.SATURATED)
+    flags = np.where(below, flags | HdrFlag.DARK | HdrFlag.BELOW_BLACK, flags).astype(np.uint8)
+
     no_darks = darks is None
     metadata: dict[str, object] = {
         "method": "linear",
@@ -271,6 +299,28 @@ def merge_linear(
         radiance=rad.reshape(shape), variance=var.reshape(shape), flags=flags.reshape(shape),
         frames_used=used.reshape(shape), exposures_s=tuple(float(f.exposure_s) for f in frames), metadata=metadata,
     )
+
+
+def neighbour_mean(image: npt.NDArray[np.float64], step: int = 1) -> npt.NDArray[np.float64]:
+    """Mean of each pixel's 8 neighbours at ``step`` pixels (2: the same colour in a mosaic), itself excluded.
+
+    Per channel for an (H, W, C) image; at edges the neighbours that exist. A pixel without any neighbour
+    (an image of one same-colour pixel) keeps its own value.
+    """
+    h, w = image.shape[:2]
+    total = np.zeros_like(image)
+    count = np.zeros((h, w) + (1,) * (image.ndim - 2))
+    for dy in (-step, 0, step):
+        for dx in (-step, 0, step):
+            if (dy, dx) == (0, 0):
+                continue
+            ys, yd = (slice(dy, None), slice(None, h - dy)) if dy >= 0 else (slice(None, dy), slice(-dy, None))
+            xs, xd = (slice(dx, None), slice(None, w - dx)) if dx >= 0 else (slice(None, dx), slice(-dx, None))
+            total[yd, xd] += image[ys, xs]
+            count[yd, xd] += 1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out: npt.NDArray[np.float64] = np.where(count > 0, total / np.maximum(count, 1), image)
+    return out
 
 
 def _decide_weighting(prep: _Prepared) -> tuple[bool, str]:

@@ -29,17 +29,20 @@ from rig.instrument.clock import Clock
 from rig.instrument.links.base import MotionLink
 from rig.run import registry
 from rig.run.config import RigConfig
+from rig.run.flat_source import FlatSource
 from rig.run.reference import ReferenceTarget
 
 
 @dataclass
 class Instruments:
-    """What a run drives: the link, the camera, the clock they share, the reference target (if any)."""
+    """What a run drives: the link, the camera, the clock they share, the reference target (if any), the flat source."""
 
     link: MotionLink
     camera: Camera
     clock: Clock
     target: ReferenceTarget | None
+    #: What ``gonio calibrate camera`` shows the camera (None: the backend cannot calibrate its camera).
+    flat_source: FlatSource | None = None
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,8 @@ numbers carry their bounds here, where they are defined. ``rig.run.config`` load
 and turns pydantic's errors into messages that name the file, the key, the value and what was expected.
 
 Rig file tables: ``[geometry]`` (and ``[geometry.limits]``), ``[link]``, ``[axes.<joint>]``, ``[camera]``
-(``[camera.noise]``), ``[reference]``, ``[simulation]`` (``[simulation.material]``). Sweep file tables:
+(``[camera.noise]``, ``[camera.options]``), ``[reference]``, ``[simulation]`` (``[simulation.material]``,
+``[simulation.sensor]``). Sweep file tables:
 ``[sweep]`` and ``[capture]``. See examples/*.toml for annotated files.
 """
 
@@ -17,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from pydantic_core import PydanticCustomError
 
 from acquisition.cameras import registry as cameras
+from acquisition.cameras.trigger import check_callable, check_command
 from rig.run import registry
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -119,14 +121,15 @@ class AxisTable(Strict):
 
     id: Annotated[int, Field(ge=0, le=252)] | None = None
     letter: Literal["X", "Y", "Z", "A", "B", "C"] | None = None
-    units_per_degree: Pos | None = None
-    gear_ratio: Pos = 1.0
+    # Upper bounds far beyond any joint: they keep move-time and path arithmetic finite.
+    units_per_degree: Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)] | None = None
+    gear_ratio: Annotated[float, Field(gt=0, le=1e4, allow_inf_nan=False)] = 1.0
     direction: Literal[1, -1] = 1
-    zero_offset_deg: Finite = -180.0
-    min_deg: Finite | None = None
-    max_deg: Finite | None = None
-    max_speed_deg_s: Pos = 60.0
-    max_accel_deg_s2: Pos = 120.0
+    zero_offset_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] = -180.0
+    min_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] | None = None
+    max_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] | None = None
+    max_speed_deg_s: Annotated[float, Field(gt=0, le=1e5, allow_inf_nan=False)] = 60.0
+    max_accel_deg_s2: Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)] = 120.0
     tolerance_deg: Pos = 0.2
 
     @model_validator(mode="after")
@@ -147,37 +150,128 @@ class Noise(Strict):
     full_well_e: Pos = 60000.0
 
 
-class Camera(Strict):
-    """``[camera]``: the camera backend, its exposure range (s), image size and ROI (pixels).
+#: [camera] keys every backend reads; the others belong to one backend or a few (``CameraBackend.keys``).
+COMMON_CAMERA_KEYS = ("backend", "min_exposure_s", "max_exposure_s", "overhead_s", "roi", "noise", "calibration",
+                      "flat_field", "capture_timeout_s")  # fmt: skip
+#: The keys of the camera that comes with the simulated rig.
+SIMULATED_CAMERA_KEYS = ("resolution", "spp", "variant")
 
-    ``backend`` names a registered camera backend (``gonio.cameras``: folder, opencv, or a lab's own) or one
-    that comes with the rig backend (the simulated rig's "simulated").
+
+class Camera(Strict):
+    """``[camera]``: the camera backend, its exposure range (s), ROI (pixels), noise and calibration files.
+
+    ``backend`` names a registered camera backend (``gonio.cameras``: folder, opencv, gphoto2, genicam, or a
+    lab's own) or one that comes with the rig backend (the simulated rig's "simulated"). Besides the common
+    keys each backend reads its own (``acquisition.cameras.builtin``): folder: folder, trigger (a command
+    as a list of arguments with {exposure_s}-style placeholders, or "module:function"), trigger_timeout_s,
+    pattern, timeout_s, poll_interval_s, stable_polls, settle_s, accept_unconfirmed_exposure; opencv:
+    device (index, device path, video file or image-sequence pattern), api, discard_frames, strict; gphoto2:
+    port ("usb:001,004", "disk:/path"), model, download_dir, keep_on_camera; genicam: cti_file (the GenTL
+    producer), serial_number, index, discard_frames, timeout_s, pixel_format; simulated: resolution, spp,
+    variant. A key of another backend is an error naming whose it is. ``calibration`` and ``flat_field`` are
+    files written by ``gonio calibrate camera`` (relative to the rig file).
     """
 
     backend: str = "simulated"
-    folder: str | None = None
-    device: Annotated[int, Field(ge=0)] = 0
     min_exposure_s: Pos = 1e-5
     max_exposure_s: Pos = 30.0
     overhead_s: NonNeg = 0.0
-    resolution: tuple[Annotated[int, Field(ge=8, le=8192)], Annotated[int, Field(ge=8, le=8192)]] = (32, 32)
+    #: Wall seconds a capture may take beyond twice its exposure before the run stops on a camera fault.
+    capture_timeout_s: Annotated[float, Field(gt=0, le=3600)] = 60.0
     roi: tuple[int, int, int, int] | None = None
+    noise: Noise = Noise()
+    calibration: str | None = None
+    flat_field: str | None = None
+    # simulated
+    resolution: tuple[Annotated[int, Field(ge=8, le=8192)], Annotated[int, Field(ge=8, le=8192)]] = (32, 32)
     spp: Annotated[int, Field(ge=1, le=4096)] = 4
     variant: str | None = None
-    noise: Noise = Noise()
+    # folder
+    folder: str | None = None
+    trigger: tuple[str, ...] | str | None = None
+    trigger_timeout_s: Pos | None = None
+    pattern: tuple[str, ...] | None = None
+    poll_interval_s: Annotated[float, Field(gt=0, le=60)] | None = None
+    stable_polls: Annotated[int, Field(ge=1, le=100)] | None = None
+    settle_s: NonNeg | None = None
+    accept_unconfirmed_exposure: bool | None = None
+    # opencv
+    device: Annotated[int, Field(ge=0)] | str | None = None
+    api: Literal["any", "v4l2", "images", "ffmpeg", "gstreamer"] | None = None
+    strict: bool | None = None
+    # gphoto2
+    port: str | None = None
+    model: str | None = None
+    download_dir: str | None = None
+    keep_on_camera: bool | None = None
+    # genicam
+    cti_file: str | None = None
+    serial_number: str | None = None
+    index: Annotated[int, Field(ge=0)] | None = None
+    pixel_format: str | None = None
+    # more than one backend
+    timeout_s: Annotated[float, Field(gt=0, le=3600)] | None = None
+    discard_frames: Annotated[int, Field(ge=0, le=64)] | None = None
+    options: dict[str, Any] | None = None
 
     @field_validator("backend")
     @classmethod
     def _registered(cls, value: str) -> str:
         return _one_of(value, registry.provided_cameras() + cameras.names())
 
+    @field_validator("trigger")
+    @classmethod
+    def _trigger(cls, value: tuple[str, ...] | str | None) -> tuple[str, ...] | str | None:
+        if isinstance(value, str):
+            check_callable(value)
+        elif value is not None:
+            check_command(value)
+        return value
+
     @model_validator(mode="after")
     def _consistent(self) -> Camera:
         if self.min_exposure_s >= self.max_exposure_s:
             raise ValueError(f"min_exposure_s {self.min_exposure_s!r} must be below max_exposure_s")
-        if self.backend == "folder" and not self.folder:
-            raise ValueError("the folder backend needs folder (the directory the tethering software writes to)")
+        keys: tuple[str, ...] = SIMULATED_CAMERA_KEYS
+        required: tuple[str, ...] = ()
+        if self.backend not in registry.provided_cameras():
+            found = cameras.camera_backend(self.backend)
+            keys, required = found.keys, found.required
+        stray = sorted(set(self.model_fields_set) - set(COMMON_CAMERA_KEYS) - set(keys))
+        if stray:
+            whose = _owners(stray[0])
+            raise ValueError(
+                f"camera.{stray[0]} = {_shown(getattr(self, stray[0]))}: the {self.backend!r} camera backend does "
+                f"not read this key{f' ({whose})' if whose else ''}; it reads "
+                f"{', '.join(keys) or 'only the common keys'} besides {', '.join(COMMON_CAMERA_KEYS[1:])}"
+            )
+        missing = [k for k in required if getattr(self, k) in (None, "")]
+        if missing:
+            hint = f": {_HINTS[missing[0]]}" if missing[0] in _HINTS else ""
+            raise ValueError(f"the {self.backend} camera backend needs {', '.join(missing)}{hint}")
         return self
+
+
+_HINTS = {
+    "folder": "the directory the tethering software writes to",
+    "cti_file": "the GenTL producer (.cti file) of the camera's vendor",
+}
+
+
+def _shown(value: Any) -> str:
+    return repr(list(value) if isinstance(value, tuple) else value)
+
+
+def _owners(key: str) -> str:
+    """Which of gonio's camera backends read ``key``, for an error message."""
+    from acquisition.cameras import builtin
+
+    gonio_own = {"folder": builtin.FOLDER, "opencv": builtin.OPENCV, "gphoto2": builtin.GPHOTO2,
+                 "genicam": builtin.GENICAM}  # fmt: skip
+    owners = [name for name, b in gonio_own.items() if key in b.keys]
+    if key in SIMULATED_CAMERA_KEYS:
+        owners.append("simulated")
+    return f"{' and '.join(owners)} read{'s' if len(owners) == 1 else ''} it" if owners else ""
 
 
 class Reference(Strict):
@@ -206,10 +300,35 @@ class Material(Strict):
         return {k: tuple(v) if isinstance(v, list) else v for k, v in extra.items()}
 
 
+class SimulatedSensor(Strict):
+    """``[simulation.sensor]``: the simulated sensor as it really is, hidden from the controller.
+
+    Noise keys left out are those of ``[camera.noise]`` (what the controller assumes); ``vignetting`` is
+    the fraction of light lost at the sensor's corner, ``prnu_rms`` the pixels' relative sensitivity RMS,
+    ``nonlinearity`` the response's relative compression at full well (``simulator.camera.pixels``).
+    """
+
+    e_per_dn: Pos | None = None
+    read_noise_e: NonNeg | None = None
+    dark_current_e_per_s: NonNeg | None = None
+    black_level_dn: NonNeg | None = None
+    white_level_dn: Pos | None = None
+    full_well_e: Pos | None = None
+    vignetting: Annotated[float, Field(ge=0, le=0.9)] = 0.0
+    prnu_rms: Annotated[float, Field(ge=0, le=0.2)] = 0.0
+    nonlinearity: Annotated[float, Field(ge=0, le=0.2)] = 0.0
+
+
 class Simulation(Strict):
-    """``[simulation]``: what the simulated rig stands in for: material, light (W/sr), time, seed."""
+    """``[simulation]``: what the simulated rig stands in for: material, light (W/sr), time, seed, sensor.
+
+    ``camera_output``: "linear" frames, "raw" CFA mosaics, or "dng": mosaics written as DNG files and read back
+    through rawpy, the path of a real camera's RAW files.
+    """
 
     material: Material = Material()
+    camera_output: Literal["linear", "raw", "dng"] = "linear"
+    sensor: SimulatedSensor = SimulatedSensor()
     light_intensity_w_sr: Pos = 1.0
     light_kind: Literal["point", "spot"] = "point"
     time_scale: Pos | None = None

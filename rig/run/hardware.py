@@ -17,7 +17,9 @@ from rig.instrument.links.base import MotionLink
 from rig.instrument.links.dynamixel import DynamixelOptions
 from rig.run import registry
 from rig.run.backends import Instruments, RigBackend
+from rig.run.bounded_camera import BoundedCamera
 from rig.run.config import RigConfig
+from rig.run.flat_source import ManualFlatSource
 from rig.run.reference import ManualReference, ReferenceTarget
 
 
@@ -50,15 +52,17 @@ def _grbl_link(rig: RigConfig, clock: Clock) -> MotionLink:
 
     f = rig.file.link
     assert f.port is not None
-    return GrblLink(f.port, rig.axes, baudrate=f.baudrate, clock=clock)
+    # A run never assumes where the axes are: it homes (or refuses to move without homing, $22=0).
+    return GrblLink(f.port, rig.axes, baudrate=f.baudrate, clock=clock, require_home=True)
 
 
 @contextlib.contextmanager
 def _instruments(rig: RigConfig, link: MotionLink, clock: Clock) -> Iterator[Instruments]:
-    camera = open_camera(rig, clock)
+    # Bounded here, not only in the runner, so that closing a camera that hung cannot hang the exit.
+    camera = BoundedCamera(open_camera(rig, clock), slack_s=rig.file.camera.capture_timeout_s)
     manual: ReferenceTarget | None = ManualReference() if rig.file.reference.kind == "manual" else None
     try:
-        yield Instruments(link, camera, clock, manual)
+        yield Instruments(link, camera, clock, manual, ManualFlatSource())
     finally:
         camera.close()
 

@@ -5,6 +5,9 @@ the numbers the journal keeps, so a resumed run plans exactly what an uninterrup
 level yet or when the planned bracket clipped, from metering test frames. A fixed list of exposures skips
 planning. The previous point only predicts this one's level: where this point turns out darker and its
 dimmest channel falls short of the SNR goal, a second bracket planned from its own level tops it up.
+A dark ROI (most pixels undetected, or a mean within its noise of zero: a black frame, a capped lens, a
+point far darker than the last) is metered afresh before it is accepted; one still dark after metering is
+kept, with ``RoiReading.dark`` set and a note, so the table can say so.
 """
 
 from __future__ import annotations
@@ -16,13 +19,15 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from acquisition.cfa import colour_planes, counts_above_black, reduce_hdr_roi
 from acquisition.exposure.metering import meter
 from acquisition.exposure.plan import plan_exposure
 from acquisition.exposure.spec import CameraTiming, RoiLevel
+from acquisition.flatfield import FlatField
 from acquisition.frame import Camera, Frame
 from acquisition.hdr.merge import HdrImage, merge_linear
 from acquisition.noise import SensorNoise
-from acquisition.roi import RoiError, RoiReading, reduce_roi
+from acquisition.roi import RoiError, RoiReading
 
 Box = tuple[int, int, int, int]
 
@@ -39,6 +44,8 @@ class CaptureSettings:
     dark_frames: int = 1
     first_exposure_s: float = 0.01
     roi: Box | None = None
+    #: Divides every merged image (vignetting and PRNU) where the rig file names one (``[camera] flat_field``).
+    flat_field: FlatField | None = None
 
 
 #: A reading whose dimmest channel reaches less than this fraction of the SNR goal is topped up.
@@ -92,14 +99,6 @@ class Reading:
     notes: tuple[str, ...]
 
 
-def _counts_above_black(frame: Frame) -> npt.NDArray[np.float64]:
-    black = np.asarray(frame.black_level, dtype=np.float64)
-    data = np.asarray(frame.data, dtype=np.float64)
-    if black.ndim == 1 and data.ndim == 3 and black.size == data.shape[-1]:
-        return data - black
-    return data - float(np.max(black))
-
-
 def _crop(a: npt.NDArray[Any], roi: Box | None) -> npt.NDArray[Any]:
     if roi is None:
         return a
@@ -126,8 +125,12 @@ def _darks(camera: Camera, exposures: tuple[float, ...], n: int) -> tuple[dict[f
 
 
 def level_of(hdr: HdrImage, roi: Box | None) -> Level:
-    """The ROI's level (counts/s) from a merged image: peak, mean and 1st-percentile pixel over channels."""
-    rad = _crop(hdr.radiance, roi)
+    """The ROI's level (counts/s) from a merged image: peak, mean and 1st-percentile pixel over channels.
+
+    A raw mosaic's ROI is read per colour (binned 2x2 cells), so the next plan is made per colour too.
+    """
+    h, w = hdr.radiance.shape[:2]
+    rad = colour_planes(hdr, roi if roi is not None else (0, 0, w, h))
     finite = rad[np.isfinite(rad)]
     n = int(rad.shape[0] * rad.shape[1])
     if finite.size == 0:
@@ -157,17 +160,24 @@ def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | No
             notes = ("the bracket planned from the previous point clipped every pixel: metered afresh",)
         else:
             # Clipped pixels would be left out of the mean, and they are the brightest: never keep that.
-            if not reading.roi.lower_bound and not np.any(reading.roi.n_flagged):
+            if reading.roi.dark:
+                notes = ("the bracket planned from the previous point left the ROI dark: metered afresh",)
+            elif not reading.roi.lower_bound and not np.any(reading.roi.n_flagged):
                 return _topped_up(camera, settings, frames, reading)
-            notes = ("the bracket planned from the previous point clipped: metered afresh",)
+            else:
+                notes = ("the bracket planned from the previous point clipped: metered afresh",)
 
     def take_roi(t: float) -> npt.NDArray[np.float64]:
-        return _crop(_counts_above_black(_shoot(camera, t)), settings.roi)
+        return counts_above_black(_shoot(camera, t), settings.roi)
 
     metered = meter(take_roi, settings.noise, settings.target_snr, settings.timing,
                     start_exposure_s=settings.first_exposure_s, dark_frames=settings.dark_frames,
                     max_frames=settings.max_frames)  # fmt: skip
-    return _capture(camera, settings, metered.plan.exposures_s, metered.test_exposures_s, notes + metered.notes)
+    reading = _capture(camera, settings, metered.plan.exposures_s, metered.test_exposures_s, notes + metered.notes)
+    if reading.roi.dark:
+        still = "the ROI is dark even after metering (no light detected): kept, flagged dark"
+        return dataclasses.replace(reading, notes=(*reading.notes, still))
+    return reading
 
 
 def snr_reached(reading: RoiReading) -> float:
@@ -207,7 +217,8 @@ def _roi_check(settings: CaptureSettings, frames: list[Frame]) -> Reading:
         x0, y0, x1, y1 = settings.roi
         cx, cy = x0 - x0 % 2, y0 - y0 % 2
         box = (cx, cy, x1 + x1 % 2, y1 + y1 % 2)
-        frames = [dataclasses.replace(f, data=_crop(f.data, box)) for f in frames]
+        frames = [dataclasses.replace(f, data=_crop(f.data, box), origin_xy=(f.origin_xy[0] + cx, f.origin_xy[1] + cy))
+                  for f in frames]  # fmt: skip
         check = dataclasses.replace(check, roi=(x0 - cx, y0 - cy, x1 - cx, y1 - cy))
     return _merge(None, check, frames, (), ())
 
@@ -237,7 +248,9 @@ def _merge(
     applied = tuple(f.exposure_s for f in frames)
     darks, dark_taken = _darks(camera, applied, settings.dark_frames) if camera is not None else ({}, ())
     hdr = merge_linear(frames, settings.noise, darks=darks or None)
+    if settings.flat_field is not None:
+        hdr = settings.flat_field.apply(hdr, frames[0].origin_xy)
     h, w = hdr.radiance.shape[:2]
     roi = settings.roi if settings.roi is not None else (0, 0, w, h)
-    reading = reduce_roi(hdr.radiance, hdr.variance, roi, flags=hdr.saturated)
+    reading = reduce_hdr_roi(hdr, roi)
     return Reading(reading, hdr, applied, dark_taken, test, level_of(hdr, roi), notes)

@@ -24,7 +24,7 @@ considered by it.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -33,6 +33,7 @@ from rig.instrument.axis import Axis, AxisLimitError
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Branch, Joints, Reason, Solution, solve_degrees
 from rig.run.plan_order import FloatArray, order_path, pairwise_times, step_times
+from rig.run.plan_paths import ArmPaths, gap_of, safe_sequence
 
 __all__ = [
     "Plan",
@@ -48,6 +49,8 @@ __all__ = [
 Directions = tuple[float, float, float, float]
 #: A joint without an axis is fixed; a point may differ from its fixed value by this much (degrees).
 FIXED_JOINT_TOL_DEG = 1e-6
+#: Reason code of a point that cannot be reached without the arms passing through each other.
+ARMS_CROSS = "arms_cross"
 
 
 @dataclass(frozen=True)
@@ -62,6 +65,9 @@ class PlannedPoint:
     index: int
     directions_deg: Directions
     joints: Joints
+    #: Poses the move here passes through first: a direct move from the point before would bring the arms
+    #: closer than the minimum separation on the way (``rig.run.plan_paths``).
+    via: tuple[Joints, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -127,6 +133,11 @@ class Plan:
     reference_before: tuple[int, ...] = ()
     reference_joints: Joints | None = None
     motion_as_generated_s: float | None = None
+    #: Moves (to points and to and from the reference pose) split into safe legs, of ``moves`` in all.
+    split_moves: int = 0
+    moves: int = 0
+    #: The swept-path check the plan used; the runner's guard checks every move at run time with it.
+    paths: ArmPaths | None = field(default=None, compare=False, repr=False)
 
     def summary(self, examples: int = 3) -> str:
         """Human-readable plan: counts, unreachable points grouped by reason with examples, time by cause."""
@@ -141,6 +152,10 @@ class Plan:
             if len(items) > examples:
                 lines.append(f"    ... and {len(items) - examples} more")
         e = self.estimate
+        lines.append(
+            f"Moves split into safe legs: {self.split_moves} of {self.moves} (a direct move would bring the arms "
+            "closer than the minimum separation on the way)"
+        )
         lines.append(f"Estimated run time: {format_duration(e.total_s)}")
         parts = [
             ("motion", e.motion_s, ""),
@@ -351,10 +366,52 @@ def plan_sweep(
             reason[i] = Reason.JOINT_LIMIT.value
             detail[int(i)] = _axis_detail(name, float(values[i]), s0, by_name.get(name))
 
+    good = np.flatnonzero(reason == "")
+    moving = [n for n in names if n in by_name]
+    speed, accel = _limits(by_name, moving)
+    s = np.array([float(np.asarray(getattr(start, n))) for n in moving], dtype=np.float64)
+    held = {n: float(np.asarray(getattr(start, n))) for n in names if n not in by_name}
+    paths = ArmPaths(geometry, moving, speed, accel, coordinated, held)
+    r_row = None
+    if reference_joints is not None:
+        r_row = np.array([float(np.asarray(getattr(reference_joints, n))) for n in moving], dtype=np.float64)
+    xg_all = np.stack([placed[n][good] for n in moving], axis=1) if moving else np.zeros((len(good), 0))
+    if paths.active and len(good):
+        # One side of the arms for the whole run (the reference pose's, else the most points'): the others
+        # cannot be reached without the arms passing through each other.
+        gaps = gap_of(paths, xg_all)
+        common = int(np.bincount(gaps - gaps.min()).argmax() + gaps.min())
+        side = int(gap_of(paths, r_row)[0]) if r_row is not None else common
+        other = gaps != side
+        for i in good[other]:
+            reason[i] = ARMS_CROSS
+            detail[int(i)] = (f"the light and camera arms are on the other side of each other here than at "
+                              f"{'the reference pose' if r_row is not None else 'most points'}: reaching it "
+                              "would pass the arms through each other (min_separation_deg)")  # fmt: skip
+        good, xg_all = good[~other], xg_all[~other]
+
     def row(i: int) -> Directions:
         r = rows[i]
         return float(r[0]), float(r[1]), float(r[2]), float(r[3])
 
+    def as_joints(x: FloatArray) -> Joints:
+        return Joints.from_dict({**held, **{n: float(v) for n, v in zip(moving, x, strict=True)}})
+
+    perm = np.arange(len(good), dtype=np.intp)
+    if order:
+        perm = np.asarray(order_path(xg_all, s, speed, accel, coordinated), dtype=np.intp)
+    x = xg_all[perm]
+    kept, via = safe_sequence(paths, s, x)
+    for dropped in np.flatnonzero(~kept):
+        at = int(good[perm[dropped]])
+        reason[at] = ARMS_CROSS
+        detail[at] = "no move from the point before keeps the arms min_separation_deg apart, even split into legs"
+    via_kept = {int(np.count_nonzero(kept[:k])): legs for k, legs in via.items()}
+    perm, x = perm[kept], x[kept]
+    points = tuple(
+        PlannedPoint(int(good[k]), row(int(good[k])), as_joints(x[pos]), tuple(map(as_joints, via_kept.get(pos, ()))))
+        for pos, k in enumerate(perm)
+    )
     skipped = []
     for i in np.flatnonzero(reason != ""):
         text = detail.get(int(i))
@@ -362,29 +419,38 @@ def plan_sweep(
             unreachable = sol.at(int(i))
             text = getattr(unreachable, "message", str(reason[i]))
         skipped.append(SkippedPoint(int(i), row(int(i)), str(reason[i]), text))
-    good = np.flatnonzero(reason == "")
-    joints = [Joints.from_dict({n: float(placed[n][i]) for n in names}) for i in good]
-    perm = order_points(joints, axes, start, coordinated=coordinated) if order else list(range(len(joints)))
-    points = tuple(PlannedPoint(int(good[k]), row(int(good[k])), joints[k]) for k in perm)
 
-    x, s, moving = _moving_matrix([p.joints for p in points], by_name, start)
-    speed, accel = _limits(by_name, moving)
+    def leg_time(a: FloatArray, b: FloatArray, legs: Sequence[FloatArray]) -> float:
+        nodes = np.vstack([a[None, :], *[leg[None, :] for leg in (legs or [b])]])
+        return float(step_times(nodes[:-1], nodes[1:], speed, accel, coordinated).sum())
+
     path = np.vstack([s[None, :], x])
     steps = step_times(path[:-1], path[1:], speed, accel, coordinated)
+    for pos, legs in via_kept.items():
+        steps[pos] = leg_time(path[pos], path[pos + 1], [*legs, path[pos + 1]])
+    split = len(via_kept)
     refs = _reference_positions(len(points), int(reference_every))
     ref_total = len(refs) * reference_s
-    if reference_joints is not None and refs:
-        r, _, _ = _moving_matrix([reference_joints], by_name, start)
-        to_ref = pairwise_times(path, r, speed, accel, coordinated)[:, 0]  # from node k (0 = start) to R
-        for k in refs:
-            back = to_ref[k + 1] - steps[k] if k < len(points) else 0.0
-            ref_total += to_ref[k] + back + settle_s
+    if r_row is not None and refs:
+        for k in map(int, refs):
+            out_legs = paths.legs(path[k], r_row)
+            back_legs = paths.legs(r_row, path[k + 1]) if k < len(points) else [r_row]
+            if out_legs is None or back_legs is None:
+                where = f"point #{points[k - 1].index}" if k else "the start pose"
+                raise ValueError(f"the reference pose cannot be reached from {where} (or back) without the arms "
+                                 "passing through each other; move [reference] theta_i_deg/theta_o_deg")  # fmt: skip
+            split += (len(out_legs) > 1) + (len(back_legs) > 1)
+            back = leg_time(r_row, path[k + 1], back_legs) - steps[k] if k < len(points) else 0.0
+            ref_total += leg_time(path[k], r_row, out_legs) + back + settle_s
     n = len(points)
     unordered = None
-    if order:
-        xg, sg, _ = _moving_matrix(joints, by_name, start)
-        generated = np.vstack([sg[None, :], xg])
-        unordered = float(step_times(generated[:-1], generated[1:], speed, accel, coordinated).sum())
+    if order:  # the same walk (legs included) in the sweep's own order
+        kept_g, via_g = safe_sequence(paths, s, xg_all)
+        generated = np.vstack([s[None, :], xg_all[kept_g]])
+        times_g = step_times(generated[:-1], generated[1:], speed, accel, coordinated)
+        for pos, legs in {int(np.count_nonzero(kept_g[:k])): v for k, v in via_g.items()}.items():
+            times_g[pos] = leg_time(generated[pos], generated[pos + 1], [*legs, generated[pos + 1]])
+        unordered = float(times_g.sum())
     estimate = TimeEstimate(
         motion_s=float(sum(steps)),
         settle_s=n * settle_s,
@@ -393,4 +459,6 @@ def plan_sweep(
         overhead_s=n * overhead_s_per_point,
         reference_captures=len(refs),
     )
-    return Plan(points, tuple(skipped), estimate, start, refs, reference_joints, unordered)
+    moves = n + (2 * len(refs) - (1 if refs and refs[-1] == n else 0) if r_row is not None else 0)
+    return Plan(points, tuple(skipped), estimate, start, refs, reference_joints, unordered, split, moves, paths)
+

@@ -6,9 +6,11 @@ the whole path and a window of it with both ends fixed. The search alternates 2-
 and Or-opt (move a run of 1-3 points elsewhere, either way round), evaluating every candidate move of a
 round at once on the move-time matrix with numpy and applying the best non-overlapping improving moves.
 
-Up to ``MATRIX_LIMIT`` points the matrix is held whole; beyond, the greedy construction computes one
-row at a time and the local search runs on overlapping windows of ``WINDOW`` points, so memory stays
-bounded and time grows about linearly after the quadratic greedy pass.
+Up to ``MATRIX_LIMIT`` points the matrix is held whole. Beyond, the greedy construction finds each next
+point among the nearest candidates of a k-d tree (joint displacements over each axis's speed, the
+Chebyshev metric: the time of a long move is its slowest axis's distance over its speed), rebuilt on the
+unvisited points whenever half of its points have been visited, and the local search runs on overlapping
+windows of ``WINDOW`` points: memory stays bounded and time grows as n log n (``bench/plan_scaling.py``).
 """
 
 from __future__ import annotations
@@ -204,6 +206,42 @@ def _windowed(nodes: FloatArray, order: IntArray, speed: FloatArray, accel: Floa
     return p[1:]
 
 
+def _greedy_tree(nodes: FloatArray, speed: FloatArray, accel: FloatArray, coordinated: bool) -> IntArray:
+    """Nearest-neighbour order of nodes 1..n from node 0 with candidates from a k-d tree (see the module doc)."""
+    from scipy.spatial import cKDTree
+
+    n = len(nodes) - 1
+    scaled = nodes / speed[None, :]
+    visited = np.zeros(n + 1, dtype=bool)
+    visited[0] = True
+    order = np.empty(n, dtype=np.intp)
+    remaining = np.arange(1, n + 1)
+    tree = cKDTree(scaled[remaining])
+    stale = 0
+    here = 0
+    for step in range(n):
+        k = 8
+        while True:
+            kk = min(k, len(remaining))
+            _, idx = tree.query(scaled[here], k=kk, p=np.inf)
+            cand = remaining[np.atleast_1d(idx)]
+            cand = cand[~visited[cand]]
+            if len(cand) or kk == len(remaining):
+                break
+            k *= 4
+        # The exact move times decide among the tree's candidates.
+        times = pairwise_times(nodes[here : here + 1], nodes[cand], speed, accel, coordinated)[0]
+        nxt = int(cand[int(np.argmin(times))])
+        visited[nxt] = True
+        order[step] = here = nxt
+        stale += 1
+        if stale * 2 >= len(remaining) and step + 1 < n:
+            remaining = remaining[~visited[remaining]]
+            tree = cKDTree(scaled[remaining])
+            stale = 0
+    return order
+
+
 def order_path(
     points: FloatArray, start: FloatArray, speed: FloatArray, accel: FloatArray, coordinated: bool
 ) -> IntArray:
@@ -232,7 +270,7 @@ def order_path(
         path = np.concatenate([[0], order])
         return float(step_times(nodes[path[:-1]], nodes[path[1:]], speed, accel, coordinated).sum())
 
-    best = search(_greedy(row, n))
+    best = search(_greedy(row, n) if whole is not None else _greedy_tree(nodes, speed, accel, coordinated))
     identity = np.arange(1, n + 1, dtype=np.intp)
     # Local search from the greedy tour can end worse than the sweep's own order; then try that too.
     if cost(best) > cost(identity):

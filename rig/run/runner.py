@@ -30,10 +30,13 @@ from rig.instrument.clock import Clock
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints, forward
 from rig.instrument.links.base import LinkError, MotionLink, MoveTimeout
+from rig.run.bounded_camera import BoundedCamera
+from rig.run.journal import check_records
 from rig.run.measure import CaptureSettings, Level, Reading, take_reading
+from rig.run.motion_guard import MotionGuard
 from rig.run.plan import Plan, PlannedPoint
 from rig.run.reference import ReferenceTarget
-from rig.run.store import RunStore
+from rig.run.store import JOURNAL, RunStore
 from rig.run.table import build_rows
 from rig.run.table_parquet import write_beside
 
@@ -78,6 +81,8 @@ class RunOptions:
     save_images: bool = False
     include_cosine: bool = False
     progress: bool = True
+    #: Wall seconds a camera call may take beyond twice its exposure before it is a camera fault.
+    capture_timeout_s: float = 60.0
 
 
 @dataclass(frozen=True)
@@ -116,16 +121,23 @@ class Runner:
     ) -> None:
         if reference is not None and target is None:
             raise ValueError("a reference schedule needs a ReferenceTarget to put the tile in view")
+        self.options = options or RunOptions()
+        if not isinstance(camera, BoundedCamera):  # every wait on the camera is bounded
+            camera = BoundedCamera(camera, slack_s=self.options.capture_timeout_s)
         self.plan, self.store, self.link, self.camera, self.clock = plan, store, link, camera, clock
         self.geometry, self.capture, self.reference, self.target = geometry, capture, reference, target
-        self.options = options or RunOptions()
         self._measured = self._references = self._drift = 0
+        allowed = [p.joints for p in plan.points] + [v for p in plan.points for v in p.via]
+        if reference is not None:
+            allowed.append(reference.joints)
+        self.guard = MotionGuard(plan.paths, allowed)
 
     # -- the loop -------------------------------------------------------------------------------------
     def run(self) -> RunSummary:
         """Measure every point not yet in the journal, then write the table; stops safely on any fault."""
         started = self.clock.now()
         records = self.store.records()
+        check_records(records, self.store.path / JOURNAL)
         done = {r["index"] for r in records if r["kind"] == "point"}
         ref_done = {r["slot"]: r for r in records if r["kind"] == "reference"}
         points = [r for r in records if r["kind"] == "point"]
@@ -174,21 +186,35 @@ class Runner:
         return f"θi {ti:.0f}° θo {to:.0f}° reading {float(np.mean(reading.roi.mean)):.4g} DN/s"
 
     # -- motion ---------------------------------------------------------------------------------------
-    def _move(self, joints: Joints) -> Joints:
-        target = {k: float(v) for k, v in joints.as_dict().items()}
+    def _move(self, joints: Joints, via: tuple[Joints, ...] = ()) -> Joints:
+        held: dict[str, float] = {}
+        for stop in (*via, joints):
+            target = {k: float(v) for k, v in stop.as_dict().items() if k in self.guard_names}
+            # Every leg is checked from where the arms are now (the guard), never assumed from the plan.
+            for leg in self.guard.legs(self.link, target):
+                held = self._leg(leg)
+        if self.options.settle_s > 0:
+            self.clock.sleep(self.options.settle_s)
+        names = set(Joints.__dataclass_fields__)
+        return Joints.from_dict({**{k: float(v) for k, v in joints.as_dict().items()},
+                                 **{k: v for k, v in held.items() if k in names}})  # fmt: skip
+
+    @property
+    def guard_names(self) -> set[str]:
+        """Joints the link drives (the others have no axis and stay where the plan holds them)."""
+        return set(self.plan.paths.names) if self.plan.paths is not None else set(Joints.__dataclass_fields__)
+
+    def _leg(self, target: dict[str, float]) -> dict[str, float]:
+        """One move to ``target`` (deg), re-issued once after a timeout; the joints read back."""
         for attempt in (1, 2):
             self.link.move_to(target)
             try:
-                held = self.link.wait_in_position(timeout_s=self.options.move_timeout_s)
-                break
+                return self.link.wait_in_position(timeout_s=self.options.move_timeout_s)
             except MoveTimeout as exc:
                 self._event("move_timeout", str(exc), attempt=attempt)
                 if attempt == 2:
                     raise
-        if self.options.settle_s > 0:
-            self.clock.sleep(self.options.settle_s)
-        names = set(Joints.__dataclass_fields__)
-        return Joints.from_dict({k: v for k, v in held.items() if k in names})
+        raise AssertionError("unreachable")
 
     def _read(self, previous: Level | None, capture: CaptureSettings | None = None) -> Reading:
         for attempt in (1, 2):
@@ -202,7 +228,7 @@ class Runner:
 
     # -- one point, one reference ---------------------------------------------------------------------
     def _point(self, pos: int, point: PlannedPoint, level: Level | None) -> Reading:
-        actual = self._move(point.joints)
+        actual = self._move(point.joints, point.via)
         d = forward(self.geometry, actual)
         reading = self._read(level)
         image = None
@@ -225,6 +251,7 @@ class Runner:
         return {
             "reading": np.atleast_1d(r.mean).tolist(), "reading_std_error": np.atleast_1d(r.std_error).tolist(),
             "n_pixels": r.n_pixels, "n_flagged": np.atleast_1d(r.n_flagged).tolist(), "lower_bound": r.lower_bound,
+            "dark": r.dark, "n_dark": np.atleast_1d(r.n_dark).tolist(),
             "exposures_s": list(reading.exposures_s), "dark_exposures_s": list(reading.dark_exposures_s),
             "test_exposures_s": list(reading.test_exposures_s), "level": reading.level.as_dict(),
             "notes": list(reading.notes),
@@ -247,6 +274,8 @@ class Runner:
         }  # fmt: skip
         if reading.roi.lower_bound:
             raise _CameraFailed("the reference reading saturated in every frame; lower the light or the exposure")
+        if reading.roi.dark:
+            raise _CameraFailed("the reference reading is dark even after metering: is the lamp on, the lens cap off?")
         if last is not None:
             a, b = np.asarray(last["reading"]), np.asarray(record["reading"])
             se = np.hypot(np.asarray(last["reading_std_error"]), np.asarray(record["reading_std_error"]))
@@ -269,7 +298,9 @@ class Runner:
 
     def _finish(self) -> str:
         ref = self.reference
-        rows = build_rows(self.store.records(), self.geometry.joint_names,
+        records = self.store.records()
+        check_records(records, self.store.path / JOURNAL)
+        rows = build_rows(records, self.geometry.joint_names,
                           albedo=ref.albedo if ref else None, albedo_std_error=ref.albedo_std_error if ref else 0.0,
                           include_cosine=self.options.include_cosine)  # fmt: skip
         path = self.store.write_table(rows)

@@ -16,22 +16,24 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.exposure.spec import CameraTiming
-from acquisition.noise import SensorNoise
 from rig.instrument.kinematics import inverse, require
+from rig.instrument.kinematics_types import UnreachableError
 from rig.run.backends import Instruments, backend
-from rig.run.config import RigConfig, SweepConfig, parse, rig_config, sweep_config
+from rig.run.calibrate import camera_flat_field, camera_noise
+from rig.run.config import ConfigError, RigConfig, SweepConfig, parse, rig_config, sweep_config
 from rig.run.config_schema import RigFile, SweepFile
+from rig.run.journal import check_records
 from rig.run.measure import CaptureSettings
 from rig.run.plan import Plan, plan_sweep
 from rig.run.runner import ReferenceSettings, Runner, RunOptions, RunSummary
-from rig.run.store import RunStore
+from rig.run.store import JOURNAL, RunStore
 
 
 def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
     """The capture settings of a run from the rig's camera and the sweep's [capture] table."""
     cam, cap = rig.file.camera, sweep.file.capture
     return CaptureSettings(
-        noise=SensorNoise(**cam.noise.model_dump()),
+        noise=camera_noise(rig),
         timing=CameraTiming(cam.min_exposure_s, cam.max_exposure_s, overhead_s=cam.overhead_s),
         target_snr=cap.target_snr,
         exposures_s=tuple(cap.exposures_s) if cap.exposures_s else None,
@@ -40,6 +42,7 @@ def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
         first_exposure_s=cap.first_exposure_s,
         # The simulated camera renders only the ROI, so what it delivers is the ROI already.
         roi=cam.roi if cam.backend != "simulated" else None,
+        flat_field=camera_flat_field(rig),
     )
 
 
@@ -48,7 +51,13 @@ def reference_settings(rig: RigConfig) -> ReferenceSettings | None:
     ref = rig.file.reference
     if ref.kind == "none":
         return None
-    joints = require(inverse(rig.geometry, ref.theta_i_deg, 0.0, ref.theta_o_deg, 180.0))
+    try:
+        joints = require(inverse(rig.geometry, ref.theta_i_deg, 0.0, ref.theta_o_deg, 180.0))
+    except UnreachableError as exc:
+        raise ConfigError(
+            f"{rig.path}: [reference] theta_i_deg = {ref.theta_i_deg!r}, theta_o_deg = {ref.theta_o_deg!r}: "
+            f"the reference pose is unreachable on this rig ({exc}); expected a pose the rig reaches"
+        ) from None
     return ReferenceSettings(ref.albedo, ref.albedo_std_error, ref.theta_i_deg, ref.theta_o_deg, joints,
                              every=ref.every, drift_sigma=ref.drift_sigma, target_snr=ref.target_snr)  # fmt: skip
 
@@ -98,7 +107,8 @@ def options_for(rig: RigConfig, sweep: SweepConfig, progress: bool) -> RunOption
     """Run options from the rig's [link] and the sweep's [capture] tables."""
     link, cap = rig.file.link, sweep.file.capture
     return RunOptions(move_timeout_s=link.move_timeout_s, settle_s=link.settle_s, on_stop=link.on_stop,
-                      save_images=cap.save_images, include_cosine=cap.include_cosine, progress=progress)  # fmt: skip
+                      save_images=cap.save_images, include_cosine=cap.include_cosine, progress=progress,
+                      capture_timeout_s=rig.file.camera.capture_timeout_s)  # fmt: skip
 
 
 def _run(store: RunStore, rig: RigConfig, sweep: SweepConfig, plan: Plan, progress: bool) -> RunSummary:
@@ -134,6 +144,7 @@ def resume_run(path: str | Path, *, progress: bool = True) -> RunSummary:
         previous = getattr(store, "previous_status", None) or store.status()
         if previous.get("state") == "finished":
             raise ValueError(f"{path}: the run is finished ({store.path / 'samples.csv'}); nothing to resume")
+        check_records(store.records(), store.path / JOURNAL)  # before anything is opened or moved
         rig, sweep = configs_of(store)
         plan = make_plan(rig, sweep)
         if len(plan.points) != store.manifest["points"]:

@@ -18,9 +18,11 @@ import copy
 import csv
 import errno
 import fcntl
+import glob
 import json
 import os
 import re
+import shutil
 import socket
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -70,6 +72,47 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
+def _check_empty(run: Path) -> None:
+    """Refuse a directory that holds anything but a killed creation's leftovers (a free lock, an empty journal)."""
+    if not run.exists():
+        return
+    if not run.is_dir():
+        raise RunStoreError(f"{run}: exists and is not a directory")
+    names = sorted(p.name for p in run.iterdir())
+    if MANIFEST in names:
+        raise RunStoreError(f"{run}: already holds a run ({MANIFEST}); use RunStore.open to resume it")
+    leftovers = set(names) <= {LOCK, JOURNAL} and (JOURNAL not in names or (run / JOURNAL).stat().st_size == 0)
+    if names and leftovers and _lock_is_free(run / LOCK):
+        # A creation by an older gonio killed before its manifest: nothing was measured; start afresh.
+        for name in names:
+            (run / name).unlink()
+        return
+    if names:
+        raise RunStoreError(f"{run}: not empty ({', '.join(names[:5])}); a new run needs an empty directory")
+
+
+def _lock_is_free(lock: Path) -> bool:
+    """Whether nobody holds ``lock`` (True also when it does not exist)."""
+    try:
+        fd = os.open(lock, os.O_RDONLY)
+    except FileNotFoundError:
+        return True
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+    return True
+
+
+def _remove_abandoned(run: Path) -> None:
+    """Delete staging directories of creations of ``run`` that were killed (their lock is free)."""
+    for old in run.parent.glob(f".{glob.escape(run.name)}.creating-*"):
+        if old.is_dir() and _lock_is_free(old / LOCK):
+            shutil.rmtree(old, ignore_errors=True)
+
+
 def _plain(value: Any, where: str, file: Path) -> Any:
     try:
         return jsonable(value, where)
@@ -102,41 +145,56 @@ class RunStore:
 
     @classmethod
     def create(cls, path: str | Path, manifest: Mapping[str, Any]) -> RunStore:
-        """Create a new run in ``path`` (made if missing, else it must be empty) and take its lock."""
+        """Create a new run in ``path`` (made if missing, else it must be empty) and take its lock.
+
+        Creation is atomic: the run is assembled (lock, journal, manifest) in a hidden sibling directory and
+        renamed into place, so a process killed at any instant leaves either a complete run or none (a
+        leftover sibling is removed by the next creation of the same run).
+        """
         run = Path(path)
         doc = _plain(manifest, "manifest", run / MANIFEST)
         if not isinstance(doc, dict) or any(k in doc for k in _RESERVED):
             raise RunStoreError(f"{run / MANIFEST}: expected a mapping without the keys {_RESERVED} (set here)")
         doc.update(format=FORMAT, created_utc=_utc_now(), gonio_version=gonio_version())
-        missing = [p for p in (run, *run.parents) if not p.exists()]
+        parent = run.parent
+        missing = [p for p in (parent, *parent.parents) if not p.exists()]
         try:
-            run.mkdir(parents=True, exist_ok=True)
+            parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise RunStoreError(f"{run}: cannot create the run directory: {exc}") from exc
         for new in reversed(missing):  # make each new directory's entry durable in its parent
             _fsync_dir(new.parent)
-        # Files made here are removed if creation fails, so a retry finds the directory as it was.
-        made = [] if (run / LOCK).exists() else [run / LOCK]
-        store = cls(run, writable=True)
-        store._take_lock()
+        if not _lock_is_free(run / LOCK):
+            cls(run, writable=True)._take_lock()  # raises RunLockedError naming the holder
+        _check_empty(run)
+        _remove_abandoned(run)
+        staging = parent / f".{run.name}.creating-{os.getpid()}-{os.urandom(4).hex()}"
         try:
-            others = sorted(p.name for p in run.iterdir() if p.name != LOCK)
-            if MANIFEST in others:
-                raise RunStoreError(f"{run}: already holds a run ({MANIFEST}); use RunStore.open to resume it")
-            if others:
-                raise RunStoreError(f"{run}: not empty ({', '.join(others[:5])}); a new run needs an empty directory")
-            # The journal exists before the manifest, so a directory with a manifest always has a journal.
-            store._journal_fd = os.open(run / JOURNAL, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND, 0o644)
-            made.append(run / JOURNAL)
+            staging.mkdir()
+        except OSError as exc:
+            raise RunStoreError(f"{run}: cannot create the run directory: {exc}") from exc
+        store = cls(staging, writable=True)
+        try:
+            store._take_lock()
+            store._journal_fd = os.open(staging / JOURNAL, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND, 0o644)
             os.fsync(store._journal_fd)
-            with atomic_path(run / MANIFEST) as tmp:
+            with atomic_path(staging / MANIFEST) as tmp:
                 tmp.write_text(_dumps(doc, indent=2) + "\n", encoding="utf-8")
-            _fsync_dir(run)
+            _fsync_dir(staging)
+            if run.is_dir() and not any(run.iterdir()):
+                run.rmdir()  # rename(2) replaces an empty directory too, but not on every filesystem
+            try:
+                staging.rename(run)
+            except OSError as exc:
+                if exc.errno in (errno.EEXIST, errno.ENOTEMPTY):
+                    raise RunStoreError(f"{run}: another process created a run here meanwhile") from None
+                raise RunStoreError(f"{run}: cannot create the run directory: {exc}") from exc
+            _fsync_dir(parent)
         except BaseException:
-            for f in made:  # unlinking the lock is safe: _take_lock re-checks the inode it locked
-                f.unlink(missing_ok=True)
             store.close()
+            shutil.rmtree(staging, ignore_errors=True)
             raise
+        store.path = run
         store.manifest = doc
         return store
 

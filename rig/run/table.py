@@ -8,7 +8,8 @@ journal, a run resumed after a crash ends with the table of an uninterrupted run
 Columns: the sweep index; measured and target BRDF angles (deg); the joint angles read back (deg); per
 channel r, g, b: the BRDF (1/sr) with its standard error and the error without the reference albedo's
 common part, and the raw reading (counts/s at gain 1) with its error; whether the value is a lower
-bound (saturated pixels); the frames and their total exposure (s).
+bound (saturated pixels); whether the ROI was dark (no light detected even after metering: the value is
+noise about zero); the frames and their total exposure (s).
 """
 
 from __future__ import annotations
@@ -83,6 +84,7 @@ def build_rows(
         row |= _channels("reading", p["reading"]) | _channels("reading_se", p["reading_std_error"])
         row["includes_cosine"] = include_cosine
         row["lower_bound"] = lower
+        row["dark"] = bool(p.get("dark", False))  # journals before the flag existed: not known to be dark
         row["n_frames"] = len(p["exposures_s"])
         row["total_exposure_s"] = float(sum(p["exposures_s"]))
         row["exposures_s"] = ";".join(repr(float(t)) for t in p["exposures_s"])

@@ -136,16 +136,22 @@ def sensor_counts(
     rng: np.random.Generator | int,
     gain: float = 1.0,
     offset_dn: npt.ArrayLike | None = None,
+    pixel_gain: npt.ArrayLike | None = None,
+    nonlinearity: float = 0.0,
 ) -> npt.NDArray[np.unsignedinteger]:
     """Raw counts (black included, quantised, clipped to the ADC range) of one exposure of ``radiance`` (counts/s).
 
     ``offset_dn`` is a fixed-pattern offset in counts (per pixel, broadcast against the image) added to the
     black level: the same in every frame of a camera, so dark frames carry it and subtracting them removes it.
+    ``pixel_gain`` is each pixel's relative response to light (vignetting times PRNU, broadcast against
+    the image); ``nonlinearity`` bends the collected charge ``e`` to ``e (1 - nonlinearity e / full_well_e)``.
     """
     rad = _validated_radiance(radiance)
     _check_exposure(exposure_s, gain)
     gen = as_generator(rng)
     mean_e = rad * (exposure_s * noise.e_per_dn)
+    if pixel_gain is not None:
+        mean_e *= np.asarray(pixel_gain, dtype=np.float64).reshape(mean_e.shape[:2] + (1,) * (mean_e.ndim - 2))
     mean_e += noise.dark_current_e_per_s * exposure_s
     # A mean of ten full wells clips just as surely as any larger one, and keeps Poisson's argument far
     # from its overflow limit whatever radiance the caller passes.
@@ -154,6 +160,8 @@ def sensor_counts(
     np.minimum(electrons, math.floor(noise.full_well_e), out=electrons)
     signal = electrons.astype(np.float32)
     del electrons
+    if nonlinearity:
+        signal *= np.float32(1.0) - np.float32(nonlinearity / noise.full_well_e) * signal
     if noise.read_noise_e > 0:
         read = gen.standard_normal(signal.shape, dtype=np.float32)
         read *= np.float32(noise.read_noise_e)
@@ -193,6 +201,8 @@ def capture(
     camera_id: str = "simulated",
     timestamp_s: float = 0.0,
     offset_dn: npt.ArrayLike | None = None,
+    pixel_gain: npt.ArrayLike | None = None,
+    nonlinearity: float = 0.0,
 ) -> Frame:
     """One exposure (seconds) of ``radiance`` (counts/s at gain 1, (H, W) or (H, W, C)) as a Frame.
 
@@ -212,7 +222,7 @@ def capture(
         raise ValueError(f"kind = {kind!r}: expected 'raw', 'linear' or '8bit'")
     elif cfa_pattern is not None:
         raise ValueError(f"cfa_pattern = {cfa_pattern!r} given for kind {kind!r}: only raw frames have one")
-    counts = sensor_counts(rad, noise, exposure_s, rng, gain, offset_dn)
+    counts = sensor_counts(rad, noise, exposure_s, rng, gain, offset_dn, pixel_gain, nonlinearity)
     extra: dict[str, object] = {"simulated": True}
     if kind == "8bit":
         extra["tone_curve"] = getattr(tone_curve, "__name__", repr(tone_curve))

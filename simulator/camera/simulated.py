@@ -9,11 +9,19 @@ offset, quantisation and the optional 8-bit response curve. Exposures take simul
 camera's clock, so a run on a ``ManualClock`` costs no real waiting.
 
 With ``dng_dir`` set, RAW frames are written as DNG files and read back through ``acquisition.files.raw``, the
-path a real camera's files take.
+path a real camera's files take. LibRaw refuses images under 22 pixels a side, so a source that renders
+only around its ROI returns a :class:`SensorPatch`: a window of the sensor at least that large, where it
+lies on the sensor, and the ROI inside it. The camera exposes the window, writes and reads it back, and
+delivers the ROI with its place on the sensor (``Frame.origin_xy``) and the CFA phase of that place.
+
+The sensor's hidden flaws (vignetting, pixel response non-uniformity, non-linearity:
+:class:`simulator.camera.pixels.PixelResponse`) are defined over the whole sensor and applied where the
+window lies, so calibrations made from full frames apply to the windows a run reads.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import threading
@@ -24,18 +32,54 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from acquisition.cfa import shift_pattern
 from acquisition.files.dng import write_dng
 from acquisition.files.raw import read_raw
 from acquisition.frame import ExposureSettings, Frame, FrameKind
 from acquisition.noise import SensorNoise
 from rig.instrument.clock import Clock, ManualClock
-from simulator.camera.sensor import ToneCurve, as_generator, capture, dark_frame, srgb_curve
+from simulator.camera.pixels import PixelResponse
+from simulator.camera.sensor import ToneCurve, as_generator, capture, srgb_curve
 
 PLANCK_J_S = 6.62607015e-34
 LIGHT_M_S = 299_792_458.0
 
-RadianceSource = Callable[[], npt.NDArray[np.float64]]
-"""Returns the radiance (W/(m^2 sr)) the camera sees now, (H, W, 3)."""
+#: Windows written as DNG are at least this many pixels a side (LibRaw refuses fewer than 22).
+DNG_MIN_SIDE = 24
+
+
+@dataclass(frozen=True, eq=False)
+class SensorPatch:
+    """A window of the sensor's radiance: (H, W, 3) W/(m^2 sr), its sensor origin and the part to deliver.
+
+    ``origin_xy`` is the sensor pixel of the window's pixel (0, 0); ``roi`` the box (x0, y0, x1, y1) of the
+    window the camera delivers (None: all of it); ``sensor`` the whole sensor's (width, height) (None: the
+    window is the whole sensor).
+    """
+
+    radiance: npt.NDArray[np.float64]
+    origin_xy: tuple[int, int] = (0, 0)
+    roi: tuple[int, int, int, int] | None = None
+    sensor: tuple[int, int] | None = None
+
+
+RadianceSource = Callable[[], "npt.NDArray[np.float64] | SensorPatch"]
+"""Returns the radiance (W/(m^2 sr)) the camera sees now, (H, W, 3), or a :class:`SensorPatch` of it."""
+
+
+def window_around(box: tuple[int, int, int, int], resolution: tuple[int, int], min_side: int) -> tuple[int, ...]:
+    """A window (x0, y0, x1, y1) holding ``box``, at least ``min_side`` a side, on even pixels, inside the sensor.
+
+    Even origins keep a window's CFA phase that of the sensor; the window shrinks only where the sensor does.
+    """
+    out = []
+    for lo, hi, size in ((box[0], box[2], resolution[0]), (box[1], box[3], resolution[1])):
+        side = min(max(hi - lo, min_side), size)
+        start = min(max(lo - (side - (hi - lo)) // 2, 0), size - side)
+        start -= start % 2
+        end = min(max(start + side, hi), size)
+        out.append((start, end))
+    return (out[0][0], out[1][0], out[0][1], out[1][1])
 
 
 @dataclass(frozen=True)
@@ -113,6 +157,8 @@ class SimulatedCamera:
         dng_dir: Path | None = None,
         camera_id: str = "gonio simulated camera",
         state_key: Callable[[], Hashable] | None = None,
+        response: PixelResponse | None = None,
+        keep_dng: bool = True,
     ) -> None:
         if not 0 < min_exposure_s < max_exposure_s:
             raise ValueError(
@@ -133,6 +179,8 @@ class SimulatedCamera:
         self.max_exposure_s = max_exposure_s
         self.clock: Clock = clock or ManualClock()
         self.dng_dir = Path(dng_dir) if dng_dir is not None else None
+        self.keep_dng = keep_dng
+        self.response = response or PixelResponse()
         if state_key is not None and not isinstance(seed, int):
             raise ValueError(f"state_key needs an int seed (it derives one stream per state), got {seed!r}")
         self._rng = as_generator(seed)
@@ -164,34 +212,49 @@ class SimulatedCamera:
         self._settings = ExposureSettings(exposure_s=t, gain=g)
         return self._settings
 
-    def rate_counts_per_s(self) -> npt.NDArray[np.float64]:
-        """The scene as the sensor sees it now: counts per second at gain 1, (H, W, 3)."""
-        radiance = np.asarray(self._source(), dtype=np.float64)
+    def _patch(self) -> SensorPatch:
+        got = self._source()
+        patch = got if isinstance(got, SensorPatch) else SensorPatch(np.asarray(got, dtype=np.float64))
+        radiance = np.asarray(patch.radiance, dtype=np.float64)
         if radiance.ndim != 3 or radiance.shape[2] != 3:
             raise ValueError(f"{self.identity}: radiance source gave shape {radiance.shape}, expected (H, W, 3)")
-        return radiance * self.optics.counts_per_radiance(self.noise)
+        return patch
+
+    def rate_counts_per_s(self) -> npt.NDArray[np.float64]:
+        """The scene as the sensor sees it now: counts per second at gain 1, (H, W, 3) (the whole window)."""
+        return np.asarray(self._patch().radiance, dtype=np.float64) * self.optics.counts_per_radiance(self.noise)
 
     def capture(self) -> Frame:
         """One frame at the current settings; takes ``exposure_s`` of the camera's clock."""
         self._require_open()
         with self._lock:
-            rate = self.rate_counts_per_s()
-            return self._expose(rate, dark=False)
+            patch = self._patch()
+            rate = np.asarray(patch.radiance, dtype=np.float64) * self.optics.counts_per_radiance(self.noise)
+            return self._expose(rate, patch, dark=False)
 
     def capture_dark(self) -> Frame:
         """One frame with the shutter closed at the current settings (black, dark current, offsets, noise)."""
         self._require_open()
         with self._lock:
-            shape = self.rate_counts_per_s().shape
-            return self._expose(np.zeros(shape), dark=True)
+            patch = self._patch()
+            return self._expose(np.zeros(patch.radiance.shape), patch, dark=True)
 
-    def _offsets(self, shape: tuple[int, ...]) -> npt.NDArray[np.float32] | None:
+    def _offsets(self, shape: tuple[int, ...], patch: SensorPatch) -> npt.NDArray[np.float32] | None:
         if self.fixed_pattern_dn == 0:
             return None
-        if shape not in self._fpn:
+        # Over the whole sensor when the window says where it lies, so a pixel keeps its offset in every window.
+        full = shape if patch.sensor is None else (patch.sensor[1], patch.sensor[0], *shape[2:])
+        if full not in self._fpn:
             gen = np.random.default_rng(self._fpn_seed)
-            self._fpn[shape] = (gen.standard_normal(shape) * self.fixed_pattern_dn).astype(np.float32)
-        return self._fpn[shape]
+            self._fpn[full] = (gen.standard_normal(full) * self.fixed_pattern_dn).astype(np.float32)
+        x0, y0 = patch.origin_xy
+        return self._fpn[full][y0 : y0 + shape[0], x0 : x0 + shape[1]]
+
+    def _pixel_gain(self, shape: tuple[int, ...], patch: SensorPatch) -> npt.NDArray[np.float64] | None:
+        if self.response.flat:
+            return None
+        sensor = patch.sensor if patch.sensor is not None else (shape[1], shape[0])
+        return self.response.window(sensor, patch.origin_xy, (shape[0], shape[1]))
 
     def _generator(self, dark: bool) -> np.random.Generator:
         if self._state_key is None:
@@ -202,32 +265,39 @@ class SimulatedCamera:
         self._state = (digest, n)
         return np.random.default_rng([self._seed, int(digest, 16), n])
 
-    def _expose(self, rate: npt.NDArray[np.float64], *, dark: bool) -> Frame:
+    def _expose(self, rate: npt.NDArray[np.float64], patch: SensorPatch, *, dark: bool) -> Frame:
         t, g = self._settings.exposure_s, self._settings.gain
         rng = self._generator(dark)
         start = self.clock.now()
-        pattern = self.cfa_pattern if self.kind == "raw" else None
+        # The sensor's CFA phase at the window's origin: the pattern is the sensor's, not the window's.
+        pattern = shift_pattern(self.cfa_pattern, *patch.origin_xy) if self.kind == "raw" else None
         shape = rate.shape[:2] if self.kind == "raw" else rate.shape
-        offsets = self._offsets(tuple(shape))
+        offsets = self._offsets(tuple(shape), patch)
+        light = {"pixel_gain": self._pixel_gain(tuple(shape), patch), "nonlinearity": self.response.nonlinearity}
         if dark:
-            frame = dark_frame(tuple(shape), self.noise, t, rng, gain=g, kind=self.kind, cfa_pattern=pattern,
-                               camera_id=self.identity, timestamp_s=start, offset_dn=offsets)  # fmt: skip
+            frame = capture(np.zeros(shape), self.noise, t, rng, gain=g, kind=self.kind, cfa_pattern=pattern,
+                            camera_id=self.identity, timestamp_s=start, offset_dn=offsets,
+                            nonlinearity=self.response.nonlinearity)  # fmt: skip
         else:
             frame = capture(rate, self.noise, t, rng, gain=g, kind=self.kind, cfa_pattern=pattern,
                             tone_curve=self.tone_curve, camera_id=self.identity, timestamp_s=start,
-                            offset_dn=offsets)  # fmt: skip
+                            offset_dn=offsets, **light)  # type: ignore[arg-type]  # fmt: skip
         self.clock.sleep(t)
         self._frames += 1
         if self.dng_dir is not None:
             frame = self._through_dng(frame, dark)
-        return frame
+        return _deliver(frame, patch)
 
     def _through_dng(self, frame: Frame, dark: bool) -> Frame:
         assert self.dng_dir is not None
         self.dng_dir.mkdir(parents=True, exist_ok=True)
         path = self.dng_dir / f"{'dark' if dark else 'frame'}_{self._frames:06d}.dng"
         write_dng(path, frame, exposure_s=frame.exposure_s, iso=100.0 * frame.gain, camera_id=self.identity)
-        return read_raw(path, expected_exposure_s=frame.exposure_s, timestamp_s=frame.timestamp_s)
+        try:
+            return read_raw(path, expected_exposure_s=frame.exposure_s, timestamp_s=frame.timestamp_s)
+        finally:
+            if not self.keep_dng:
+                path.unlink(missing_ok=True)
 
     def close(self) -> None:
         """Release the camera; later captures raise."""
@@ -236,3 +306,19 @@ class SimulatedCamera:
     def _require_open(self) -> None:
         if self.closed:
             raise RuntimeError(f"{self.identity} is closed")
+
+
+def _deliver(frame: Frame, patch: SensorPatch) -> Frame:
+    """The part of a window's frame the camera delivers, with its place on the sensor and its CFA phase."""
+    ox, oy = patch.origin_xy
+    if patch.roi is None:
+        return dataclasses.replace(frame, origin_xy=(ox, oy))
+    x0, y0, x1, y1 = patch.roi
+    changes: dict[str, object] = {"data": np.ascontiguousarray(frame.data[y0:y1, x0:x1]),
+                                  "origin_xy": (ox + x0, oy + y0)}  # fmt: skip
+    if frame.kind == "raw" and frame.cfa_pattern is not None:
+        changes["cfa_pattern"] = shift_pattern(frame.cfa_pattern, x0, y0)
+        if isinstance(frame.black_level, tuple) and len(frame.black_level) == 4:
+            b = frame.black_level
+            changes["black_level"] = tuple(b[((y0 + i) % 2) * 2 + (x0 + j) % 2] for i in range(2) for j in range(2))
+    return dataclasses.replace(frame, **changes)  # type: ignore[arg-type]

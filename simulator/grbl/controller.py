@@ -5,9 +5,9 @@ units (GRBL's millimetres; the gonio uses motor degrees), times in seconds of th
 
 Behaviour modelled on GRBL 1.1h:
 
-- a 128-byte serial receive ring buffer (127 usable bytes): bytes arriving while it is full are lost, so a client
-  that does not count characters garbles lines as soon as the main loop is blocked (planner full, dwell, homing,
-  feed hold);
+- a 128-byte serial receive buffer (all 128 usable: GRBL's ring has a spare slot): bytes arriving while it is full
+  are lost, so a client that does not count characters garbles lines as soon as the main loop is blocked (planner
+  full, dwell, homing, feed hold);
 - real-time bytes ``?`` ``!`` ``~`` 0x18 (and 0x84 safety door, 0x85 jog cancel) act at once and never enter the
   buffer; other bytes >= 0x80 (overrides) are ignored;
 - a 15-block planner; the ``ok`` of a motion line comes when its block enters the planner;

@@ -84,7 +84,7 @@ class GrblCore:
             for c in data:
                 if c in (0x3F, 0x21, 0x7E, 0x18) or c >= 0x80:
                     self._realtime(c)
-                elif len(self._rx) >= RX_BUFFER_SIZE - 1:
+                elif len(self._rx) >= RX_BUFFER_SIZE:
                     self.rx_dropped += 1
                 else:
                     self._rx.append(c)

@@ -5,11 +5,23 @@ packets. Every transaction here runs under one re-entrant lock, and communicatio
 packet, corrupt status packet) are retried a bounded number of times after flushing the input buffer.
 Status errors reported by a servo (range, limit, access ...) are not retried: they are answered the same
 way every time, so they become a ``ServoStatusError`` naming the servo, the instruction and the meaning.
+
+Interrupts. A signal (Ctrl-C) that lands inside an SDK transaction leaves ``is_using`` set, and every later
+transaction would answer "Port is in use!", the stop and the torque-off included. Since the lock makes this
+object the port's only user, a set flag on entry can only be such a leftover: it is cleared, and the reply
+that may still be arriving for the abandoned request is drained, before the next transaction is sent.
+
+Slow hosts. The SDK's reply timeout (transmit time + 2 x latency timer + 2 ms) is right for a quiet host, but
+a loaded one can deliver a reply later. A lost reply is therefore retried with the timeout doubled each time,
+for at least ``reply_patience_s`` of wall time, so a slow host waits longer instead of reporting a dead servo.
+A port that fails at the OS level (EIO: cable or adapter pulled) is a ``LinkError``, never a bare OSError.
 """
 
 from __future__ import annotations
 
+import termios
 import threading
+import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TypeVar
@@ -91,10 +103,23 @@ class _PortHandler(sdk.PortHandler):
     def __init__(self, port_name: str, latency_timer_ms: float) -> None:
         super().__init__(port_name)
         self.latency_timer_ms = latency_timer_ms
+        self.timeout_scale = 1.0  # raised by the bus while it retries a lost reply
 
     def setPacketTimeout(self, packet_length: int) -> None:
         self.packet_start_time = self.getCurrentTime()
-        self.packet_timeout = self.tx_time_per_byte * packet_length + self.latency_timer_ms * 2.0 + 2.0
+        base = self.tx_time_per_byte * packet_length + self.latency_timer_ms * 2.0 + 2.0
+        self.packet_timeout = base * self.timeout_scale
+
+    def setPacketTimeoutMillis(self, msec: float) -> None:
+        self.packet_start_time = self.getCurrentTime()
+        self.packet_timeout = msec * self.timeout_scale
+
+
+# What a port that fails at the OS level raises: termios.error (tcflush, tcsetattr) is not an OSError.
+_PORT_FAILURES = (serial.SerialException, OSError, termios.error)
+_MAX_TIMEOUT_SCALE = 64.0
+#: Transactions answered in time before a widened reply window is halved again.
+_RELAX_AFTER = 200
 
 
 class DynamixelBus:
@@ -105,22 +130,33 @@ class DynamixelBus:
     """
 
     def __init__(
-        self, port: str, baudrate: int = 1_000_000, *, retries: int = 3, latency_timer_ms: float = 16.0
+        self,
+        port: str,
+        baudrate: int = 1_000_000,
+        *,
+        retries: int = 3,
+        latency_timer_ms: float = 16.0,
+        reply_patience_s: float = 2.0,
     ) -> None:
         check_baudrate(baudrate)
         if retries < 0:
             raise ValueError(f"retries = {retries!r}: expected a count >= 0")
         if not latency_timer_ms > 0:
             raise ValueError(f"latency_timer_ms = {latency_timer_ms!r}: expected a positive number of ms")
+        if not reply_patience_s >= 0:
+            raise ValueError(f"reply_patience_s = {reply_patience_s!r}: expected a number of seconds >= 0")
         self.port_name = port
         self.retries = retries
+        self.reply_patience_s = reply_patience_s
+        self._abandoned = False  # a transaction was left mid-way (a signal): drain before the next one
+        self._on_time = 0
         self._lock = threading.RLock()
         self._port = _PortHandler(port, latency_timer_ms)
         self._ph = sdk.PacketHandler(2.0)
         self._port.baudrate = baudrate
         try:
             opened = self._port.openPort()
-        except (serial.SerialException, OSError) as exc:
+        except _PORT_FAILURES as exc:
             raise LinkError(f"cannot open Dynamixel port {port!r}: {exc}") from exc
         if not opened:
             raise LinkError(f"cannot open Dynamixel port {port!r} at {baudrate} baud")
@@ -135,14 +171,22 @@ class DynamixelBus:
         """Change the host's line rate (baud); the servos keep theirs."""
         check_baudrate(baudrate)
         with self._lock:
-            if not self._port.setBaudRate(baudrate):
+            try:
+                ok = self._port.setBaudRate(baudrate)
+            except _PORT_FAILURES as exc:
+                raise LinkError(f"{self.port_name}: cannot set {baudrate} baud: {exc}") from exc
+            if not ok:
                 raise LinkError(f"{self.port_name}: cannot set {baudrate} baud")
 
     def close(self) -> None:
-        """Close the port; safe to call twice."""
+        """Close the port; safe to call twice, and quiet if the port already failed (a pulled cable)."""
         with self._lock:
             if self._port.is_open:
-                self._port.closePort()
+                self._port.is_open = False
+                try:
+                    self._port.ser.close()
+                except _PORT_FAILURES:
+                    pass  # nothing more can be done with a port that is gone
 
     def __enter__(self) -> DynamixelBus:
         return self
@@ -152,27 +196,83 @@ class DynamixelBus:
 
     # -- transactions -------------------------------------------------------------------------------
 
-    def _transact(self, what: str, call: Callable[[], tuple[T, int, int]]) -> tuple[T, int]:
-        """Run one SDK transaction returning (value, comm result, error byte), retrying lost replies."""
+    def _transact(self, what: str, call: Callable[[], tuple[T, int, int]], *, patient: bool = True) -> tuple[T, int]:
+        """Run one SDK transaction returning (value, comm result, error byte), retrying lost replies.
+
+        ``patient``: a lost reply is retried, with a doubling timeout, for at least ``reply_patience_s``
+        (a servo known to be there, on a host that may be slow); scans pass False to give up quickly.
+        """
         with self._lock:
             if not self._port.is_open:
                 raise LinkError(f"{self.port_name}: {what}: the port is closed")
-            for attempt in range(self.retries + 1):
-                try:
-                    value, result, error = call()
-                except (serial.SerialException, OSError) as exc:
-                    raise LinkError(f"{self.port_name}: {what}: {exc}") from exc
-                if result == sdk.COMM_SUCCESS:
-                    return value, error
-                if result not in _RETRYABLE or attempt == self.retries:
-                    raise CommunicationError(
-                        f"{self.port_name} at {self.baudrate} baud: {what}: {self._ph.getTxRxResult(result)} "
-                        f"(after {attempt + 1} attempt{'s' if attempt else ''}; check baud rate, id and wiring)"
-                    )
-                self.comm_retries_used += 1
-                # A late or corrupt reply may still be arriving; drop it so the retry starts clean.
-                self._port.clearPort()
+            if self._abandoned or self._port.is_using:
+                self._drain()
+            started = time.monotonic()
+            attempt = 0
+            scale = self._port.timeout_scale
+            try:
+                while True:
+                    try:
+                        value, result, error = call()
+                    except _PORT_FAILURES as exc:
+                        self._abandoned = True
+                        raise LinkError(
+                            f"{self.port_name}: {what}: the port failed ({exc}); is the cable or the adapter unplugged?"
+                        ) from exc
+                    except BaseException:
+                        self._abandoned = True  # interrupted inside the SDK: is_using set, a reply maybe in flight
+                        raise
+                    if result == sdk.COMM_SUCCESS:
+                        self._on_time += 1
+                        if self._on_time >= _RELAX_AFTER and self._port.timeout_scale > 1.0:
+                            self._port.timeout_scale /= 2.0  # the host has caught up: tighten again, slowly
+                            self._on_time = 0
+                        return value, error
+                    attempt += 1
+                    waited = time.monotonic() - started
+                    slow = patient and result == sdk.COMM_RX_TIMEOUT and waited < self.reply_patience_s
+                    if result not in _RETRYABLE or (attempt > self.retries and not slow):
+                        raise CommunicationError(
+                            f"{self.port_name} at {self.baudrate} baud: {what}: {self._ph.getTxRxResult(result)} "
+                            f"(after {attempt} attempt{'s' if attempt > 1 else ''} in {waited:.2f} s; check baud "
+                            "rate, id and wiring)"
+                        )
+                    self.comm_retries_used += 1
+                    if result == sdk.COMM_RX_TIMEOUT:
+                        # The longer window is kept for the next transactions: a slow host stays slow a while.
+                        self._port.timeout_scale = min(self._port.timeout_scale * 2.0, _MAX_TIMEOUT_SCALE)
+                        self._on_time = 0
+                    # A late or corrupt reply may still be arriving; drop it so the retry starts clean.
+                    self._drain()
+            except BaseException:
+                if not patient:
+                    self._port.timeout_scale = scale  # a scan's silent ids say nothing about the host's speed
+                raise
         raise AssertionError("unreachable")
+
+    def _drain(self) -> None:
+        """Forget an abandoned transaction: clear the SDK's busy flag and discard replies until the line is quiet."""
+        self._port.is_using = False
+        self._abandoned = False
+        quiet_s = (2.0 * self._port.latency_timer_ms + 2.0) / 1000.0
+        try:
+            self._port.clearPort()
+            last = time.monotonic()
+            limit = last + 20 * quiet_s  # a line that never goes quiet is noise; the retry's CRC check handles it
+            while True:
+                now = time.monotonic()
+                if now - last >= quiet_s or now >= limit:
+                    return
+                waiting = self._port.getBytesAvailable()
+                if waiting:
+                    self._port.readPort(waiting)
+                    last = time.monotonic()
+                else:
+                    time.sleep(min(quiet_s / 4, 0.002))
+        except _PORT_FAILURES as exc:
+            self._abandoned = True
+            where = self.port_name
+            raise LinkError(f"{where}: the port failed ({exc}); is the cable or the adapter unplugged?") from exc
 
     def _check_status(self, servo_id: int, what: str, error: int) -> None:
         if error & ~ALERT_BIT:
@@ -184,16 +284,26 @@ class DynamixelBus:
         return int(model)
 
     def try_ping(self, servo_id: int) -> int | None:
-        """Model number of servo ``servo_id``, or None if nothing answers."""
+        """Model number of servo ``servo_id``, or None if nothing answers (no patience: scans ping many ids)."""
         try:
-            return self.ping(servo_id)
+            model, _ = self._transact(f"ping servo {servo_id}", lambda: self._ph.ping(self._port, servo_id),
+                                      patient=False)  # fmt: skip
         except CommunicationError:
             return None
+        return int(model)
 
     def broadcast_ping(self) -> dict[int, tuple[int, int]]:
         """Every servo answering a broadcast ping at the current baud: id -> (model number, firmware)."""
         with self._lock:
-            found, result = self._ph.broadcastPing(self._port)
+            if self._abandoned or self._port.is_using:
+                self._drain()
+            try:
+                found, result = self._ph.broadcastPing(self._port)
+            except _PORT_FAILURES as exc:
+                raise LinkError(f"{self.port_name}: broadcast ping: the port failed ({exc})") from exc
+            except BaseException:
+                self._abandoned = True
+                raise
         if result not in (sdk.COMM_SUCCESS, sdk.COMM_RX_TIMEOUT):
             raise CommunicationError(f"{self.port_name}: broadcast ping: {self._ph.getTxRxResult(result)}")
         return {int(i): (int(v[0]), int(v[1])) for i, v in found.items()}

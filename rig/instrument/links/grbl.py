@@ -52,9 +52,12 @@ class GrblLink:
     """``MotionLink`` for axes on one GRBL 1.1 controller (``Axis.address`` = axis letter), over pyserial.
 
     Opens ``port`` and handshakes on the banner at construction (soft-resetting first if ``reset_on_connect``);
-    with ``configure`` it writes ``$100..$12x`` from the axes. ``banner_timeout_s`` and ``reply_timeout_s`` are
-    wall-clock seconds for serial answers; ``command_timeout_s``, ``home_timeout_s``, ``stop_timeout_s`` and
-    ``poll_interval_s`` are seconds of ``clock``. The ``session`` attribute is the raw GRBL connection.
+    with ``configure`` it writes ``$100..$12x`` from the axes. With ``require_home`` (what a run uses) every
+    move first makes sure the position is known: it homes after a connect, a reset or an alarm, and refuses
+    to move a controller without homing ($22=0), whose position after a reset is wherever the axes stood.
+    ``banner_timeout_s`` and ``reply_timeout_s`` are wall-clock seconds for serial answers;
+    ``command_timeout_s``, ``home_timeout_s``, ``stop_timeout_s`` and ``poll_interval_s`` are seconds of
+    ``clock``. The ``session`` attribute is the raw GRBL connection.
     """
 
     def __init__(
@@ -73,8 +76,11 @@ class GrblLink:
         command_timeout_s: float = 30.0,
         home_timeout_s: float = 120.0,
         stop_timeout_s: float = 10.0,
+        require_home: bool = False,
     ) -> None:
         self.port = port
+        self.require_home = require_home
+        self._homed_generation = -1
         self.axes: dict[str, Axis] = {}
         for axis in axes:
             if not (isinstance(axis.address, str) and len(axis.address) == 1 and axis.address in AXIS_LETTERS):
@@ -284,9 +290,33 @@ class GrblLink:
         words = " ".join(f"{self.axes[n].address}{format_number(coords[n])}" for n in order)
         return f"G90 G53 G1 {words} F{format_number(feed)}"
 
+    def ensure_position_known(self) -> None:
+        """Home unless GRBL's position is known since the last reset, alarm or reconnect; refuse without homing.
+
+        Opening the port resets an Arduino-based GRBL, and every reset or alarm may leave its position
+        reported from where it restarted (0 wherever the axes stand), so only homing makes it known again.
+        """
+        self._check_open()
+        if self._homed_generation == self.session.generation and not self.position_lost:
+            return
+        if self.session.in_flight or self.session.last_status.moving:
+            raise GrblError(f"GRBL on {self.port}: cannot home while moving")
+        homing = self.session.settings().get(22, 0.0)
+        if homing != 1.0:
+            raise GrblError(
+                f"GRBL on {self.port}: the axes' position is not known (after a connect, reset or alarm GRBL "
+                "counts from wherever they stand) and homing is disabled ($22=0): fit homing switches and set "
+                "$22=1, so a run can home before it measures; refusing to move"
+            )
+        log.info("GRBL on %s: homing, since the position is not known", self.port)
+        self.home()
+        self._homed_generation = self.session.generation
+
     def _ensure_ready(self) -> None:
         """After any reset or alarm: re-read the planned position and put GRBL back in G21 G90."""
         self.session.check_not_halted()
+        if self.require_home:
+            self.ensure_position_known()
         if self._ready_generation == self.session.generation:
             return
         self._planned = self._machine_coords(self.session.status())

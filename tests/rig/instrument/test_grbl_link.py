@@ -405,3 +405,32 @@ def test_status_parsing():
     for bad in ("Idle|MPos:0,0,0", "<Idle|FS:0,0>", "<Idle|MPos:a,b>", "<Idle|junk>"):
         with pytest.raises(ValueError):
             parse_status(bad)
+
+
+def _physical(sim):
+    """Where the virtual axes really stand (units): the report plus what a power-up zeroed."""
+    c = sim.controller
+    return {a: c.mpos[a] + c._offset[i] for i, a in enumerate(c.axes)}
+
+
+def test_a_run_link_homes_so_a_reconnect_never_measures_at_the_wrong_angles(clock):
+    axes = make_axes(min_deg=0.0, max_deg=60.0)
+    with open_virtual_grbl(clock, settings={22: 1, 20: 1}, start_position={"X": -60.0, "Y": -20.0}) as sim:
+        with connect(sim, clock, axes, require_home=True) as link:
+            link.move_to({"light": 20.0, "camera": -30.0})  # homes first: the port was just opened
+            link.wait_in_position(10.0)
+            first = _physical(sim)
+        # Reopening the port resets GRBL: it reports 0 wherever the axes stand. The next run homes again.
+        with connect(sim, clock, axes, require_home=True) as link:
+            link.move_to({"light": 20.0, "camera": -30.0})
+            held = link.wait_in_position(10.0)
+            assert held == pytest.approx({"light": 20.0, "camera": -30.0}, abs=0.05)
+            assert _physical(sim) == pytest.approx(first, abs=1e-6)  # the same place, not an offset one
+
+
+def test_without_homing_a_run_link_refuses_to_move_saying_why(clock):
+    with open_virtual_grbl(clock) as sim:
+        with connect(sim, clock, require_home=True) as link:
+            with pytest.raises(GrblError, match=r"position is not known .*homing is disabled \(\$22=0\)"):
+                link.move_to({"camera": -5.0})
+            assert sim.controller.mpos == {"X": 0.0, "Y": 0.0, "Z": 0.0}  # nothing moved

@@ -90,3 +90,24 @@ def test_resume_of_a_finished_run_measures_nothing_new(tmp_path: Path, capsys: p
     assert main(["resume", str(run), "--quiet"]) == 2
     assert "finished" in capsys.readouterr().err
     assert (run / "samples.csv").read_bytes() == before
+
+
+def test_a_damaged_journal_is_refused_naming_the_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rig, sweep = _files(tmp_path)
+    run = tmp_path / "run"
+    assert main(["run", str(sweep), "--rig", str(rig), "--out", str(run), "--quiet"]) == 0
+    (run / "status.json").unlink()  # as if killed before the end
+    journal = run / "journal.jsonl"
+    good = journal.read_bytes()
+    lines = good.splitlines(keepends=True)
+    with open(journal, "ab") as fh:
+        fh.write(b'{"kind":"point"}\n')
+    capsys.readouterr()
+    assert main(["resume", str(run), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"line {len(lines) + 1}: a 'point' record without 'index'" in err, err
+    point = next(i for i, line in enumerate(lines) if b'"kind":"point"' in line)
+    journal.write_bytes(good + lines[point])
+    assert main(["resume", str(run), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"line {len(lines) + 1}: point " in err and f"already recorded on line {point + 1}" in err, err

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -258,3 +260,123 @@ def test_reference_readings_of_a_run_are_independent_draws(tmp_path: Path) -> No
     # Scatter between readings as their own errors predict (chi2 with (n - 1) x 3 degrees of freedom).
     chi2, dof = float(np.sum(((reading - reading.mean(axis=0)) / se) ** 2)), 3 * (len(later) - 1)
     assert 0.25 * dof < chi2 < 2.5 * dof, (chi2, dof)
+
+
+def test_a_pulled_cable_is_a_hardware_stop_with_the_journal_intact(tmp_path: Path) -> None:
+    def unplug(sim: SimulatedRig) -> dict[int, Callable[[], None]]:
+        assert sim.bus is not None
+        return {3: sim.bus.close}  # the device end of the line goes: the port answers EIO
+
+    store, _, (outcome, _) = _run(tmp_path, sim_rig(), _sweep(), unplug)
+    assert isinstance(outcome, RunStopped) and outcome.cause == "hardware", outcome
+    assert "unplugged" in str(outcome)
+    assert len([r for r in store.records() if r["kind"] == "point"]) == 2
+    assert store.status()["state"] == "stopped"
+
+
+def test_a_capture_that_never_returns_is_a_camera_fault_with_the_rig_safe(tmp_path: Path) -> None:
+    release = threading.Event()
+
+    def hang() -> None:
+        release.wait()  # a driver stuck in a USB transfer: never returns until the test lets it go
+
+    try:
+        # The deadline is twice the exposure plus capture_timeout_s; a hung call exceeds any deadline.
+        rig = sim_rig(camera={"capture_timeout_s": 0.5})
+        store, _, (outcome, torque) = _run(tmp_path, rig, _sweep(), lambda sim: {3: hang})
+    finally:
+        release.set()
+    assert isinstance(outcome, RunStopped) and outcome.cause == "camera", outcome
+    assert "did not return within" in str(outcome)
+    assert len([r for r in store.records() if r["kind"] == "point"]) == 1
+    assert torque and not any(torque)
+
+
+def test_a_camera_that_returns_nothing_is_a_camera_fault_not_an_attribute_error(tmp_path: Path) -> None:
+    class NoFrame(FlakyCamera):
+        def capture(self) -> Any:
+            self.captures += 1
+            return None if self.captures >= 3 else self._camera.capture()
+
+    rig, sweep = sim_rig(), _sweep()
+    plan = make_plan(rig, sweep)
+    store = RunStore.create(tmp_path / "run", manifest(rig, sweep, plan, options_for(rig, sweep, False)))
+    with SimulatedRig(spec_from(rig)) as sim:
+        assert sim.camera is not None
+        runner = Runner(plan, store, sim.open_link(dynamixel_options(rig)), NoFrame(sim.camera, {}), sim.clock,
+                        rig.geometry, capture_settings(rig, sweep), reference=reference_settings(rig),
+                        target=sim.reference, options=options_for(rig, sweep, False))  # fmt: skip
+        with pytest.raises(RunStopped, match="returned None instead of a Frame") as stopped:
+            runner.run()
+        store.close()
+        assert stopped.value.cause == "camera"
+        assert not any(sim.bus.servo(int(a.address)).torque_enabled for a in sim.axes)  # type: ignore[union-attr]
+
+
+class BlackFrames(FlakyCamera):
+    """Light captures come back black (the sensor's black level only) while ``black`` says so."""
+
+    def __init__(self, camera: Any, black: Callable[[int], bool]) -> None:
+        super().__init__(camera, {})
+        self._black = black
+
+    def capture(self) -> Any:
+        frame = super().capture()
+        if not self._black(self.captures):
+            return frame
+        level = np.asarray(frame.black_level, dtype=np.float64)
+        data = np.broadcast_to(np.round(level), frame.data.shape).astype(frame.data.dtype)
+        return dataclasses.replace(frame, data=data)
+
+
+def _run_black(tmp_path: Path, black: Callable[[int], bool]) -> tuple[RunStore, Any]:
+    rig = sim_rig()
+    sweep = in_plane_sweep([20.0], [-40.0, 0.0, 40.0], dark_frames=0)
+    plan = make_plan(rig, sweep)
+    store = RunStore.create(tmp_path / "run", manifest(rig, sweep, plan, options_for(rig, sweep, False)))
+    with SimulatedRig(spec_from(rig)) as sim:
+        assert sim.camera is not None
+        runner = Runner(plan, store, sim.open_link(dynamixel_options(rig)), BlackFrames(sim.camera, black),
+                        sim.clock, rig.geometry, capture_settings(rig, sweep), reference=reference_settings(rig),
+                        target=sim.reference, options=options_for(rig, sweep, False))  # fmt: skip
+        try:
+            outcome: Any = runner.run()
+        except RunStopped as exc:
+            outcome = exc
+        store.close()
+    return RunStore.read(tmp_path / "run"), outcome
+
+
+def test_a_black_bracket_is_metered_afresh_before_the_point_is_accepted(tmp_path: Path) -> None:
+    seen: list[int] = []
+
+    def black(n: int) -> bool:  # the first bracket after the first point comes back black, once
+        points = [r for r in RunStore.read(tmp_path / "run").records() if r["kind"] == "point"]
+        if len(points) == 1 and not seen:
+            seen.append(n)
+        return bool(seen) and n in range(seen[0], seen[0] + 2)
+
+    store, outcome = _run_black(tmp_path, black)
+    assert not isinstance(outcome, RunStopped), outcome
+    points = sorted((r for r in store.records() if r["kind"] == "point"), key=lambda r: r["position"])
+    assert any("left the ROI dark: metered afresh" in note for note in points[1]["notes"]), points[1]["notes"]
+    assert not any(p["dark"] for p in points)
+    rows = read_rows(outcome.table)
+    truth, got, se = truth_and_measured(rows, sim_rig())
+    assert np.all(np.abs(got - truth) < 4.5 * se), (got - truth) / se
+
+
+def test_a_point_that_stays_black_is_flagged_dark_in_journal_and_table(tmp_path: Path) -> None:
+    def black(n: int) -> bool:  # the lens cap goes on after the first point; references are exempt below
+        points = [r for r in RunStore.read(tmp_path / "run").records() if r["kind"] == "point"]
+        refs = [r for r in RunStore.read(tmp_path / "run").records() if r["kind"] == "reference"]
+        return len(points) >= 1 and len(refs) < 2 and len(points) < 3
+
+    store, outcome = _run_black(tmp_path, black)
+    assert not isinstance(outcome, RunStopped), outcome
+    points = sorted((r for r in store.records() if r["kind"] == "point"), key=lambda r: r["position"])
+    assert [p["dark"] for p in points] == [False, True, True]
+    assert "dark even after metering" in points[1]["notes"][-1]
+    rows = sorted(read_rows(outcome.table), key=lambda r: int(r["index"]))
+    by_index = {int(r["index"]): r["dark"] for r in rows}
+    assert [by_index[p["index"]] for p in points] == ["false", "true", "true"]

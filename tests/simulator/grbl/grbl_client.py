@@ -24,7 +24,7 @@ class Client:
     def close(self) -> None:
         self.ser.close()
 
-    def readline(self, timeout_s: float = 2.0) -> str | None:
+    def readline(self, timeout_s: float = 30.0) -> str | None:
         deadline = time.monotonic() + timeout_s
         while b"\n" not in self.buf:
             if time.monotonic() > deadline:
@@ -33,7 +33,7 @@ class Client:
         line, _, self.buf = self.buf.partition(b"\n")
         return line.decode().strip()
 
-    def read_until(self, pred, timeout_s: float = 2.0) -> list[str]:
+    def read_until(self, pred, timeout_s: float = 30.0) -> list[str]:
         lines = []
         while True:
             line = self.readline(timeout_s)

@@ -196,3 +196,21 @@ def test_dropped_status_reports_and_stall(grbl, clock):
     stuck = client.mpos()
     clock.advance(30.0)
     assert client.state() == "Run" and client.mpos() == stuck
+
+
+def test_receive_buffer_holds_all_128_bytes(grbl, clock):
+    # GRBL 1.1's ring buffer has a spare slot so all RX_BUFFER_SIZE = 128 bytes are usable, which is what
+    # character-counting clients (the link included) rely on.
+    client, sim = grbl
+    assert client.send("$10=3") == ["ok"]
+    client.ser.write(b"!")  # a feed hold suspends the main loop: lines wait in the receive buffer
+    assert client.query().startswith("<Hold:0")
+    lines = ["G21 G90"] * 12 + ["G90"] * 8  # 12 * 8 + 8 * 4 = 128 bytes
+    data = "".join(line + "\n" for line in lines).encode()
+    assert len(data) == 128
+    client.ser.write(data)
+    assert "|Bf:15,0|" in client.query()  # all 128 bytes wait in the buffer
+    assert sim.controller.rx_dropped == 0
+    client.ser.write(b"~")
+    client.run_until(lambda r: r.startswith("<Idle") and "Bf:15,128" in r)
+    assert client.other.count("ok") == len(lines)

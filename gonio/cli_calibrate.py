@@ -1,0 +1,81 @@
+"""``gonio calibrate``: calibrations of the instrument, one subcommand each (``camera`` here).
+
+``gonio calibrate camera`` shows the camera a uniform light (the simulated rig's flat source, or on a real
+rig an integrating sphere the operator is asked to place), takes a photon-transfer series and a flat-field
+series (``rig.run.calibrate``), and writes ``camera_calibration.json``, ``flat_field.npz`` and the photon
+transfer curve ``photon_transfer.png`` into ``--out``. A rig file uses them with ``[camera] calibration =
+"camera_calibration.json"`` and ``flat_field = "flat_field.npz"``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from gonio.cli_run import EXIT_BAD_INPUT, EXIT_CAMERA, EXIT_OK, _rig
+
+
+def _camera(args: argparse.Namespace) -> int:
+    from acquisition.cameras import CameraError
+    from acquisition.exposure.spec import CameraTiming
+    from acquisition.photon_transfer import PhotonTransferError
+    from analysis.camera_plots import plot_photon_transfer
+    from rig.run.calibrate import CalibrationSettings, calibrate_camera, write_calibration
+    from rig.run.session import instruments
+
+    rig = _rig(args.rig)
+    settings = CalibrationSettings(steps=args.steps, flat_frames=args.flat_frames)
+    cam = rig.file.camera
+    timing = CameraTiming(cam.min_exposure_s, cam.max_exposure_s, overhead_s=cam.overhead_s)
+    say = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    try:
+        with instruments(rig) as inst:
+            if inst.flat_source is None:
+                print(f"gonio: error: the {rig.file.link.kind} backend has no flat-field source", file=sys.stderr)
+                return EXIT_BAD_INPUT
+            cal = calibrate_camera(inst.camera, inst.flat_source, inst.clock, timing, settings, say)
+    except (CameraError, PhotonTransferError, TimeoutError) as exc:
+        print(f"gonio: camera calibration failed: {exc}", file=sys.stderr)
+        return EXIT_CAMERA
+    out = Path(args.out)
+    written = write_calibration(cal, settings, out)
+    written.append(plot_photon_transfer(cal.ptc, out / "photon_transfer.png", f"{cal.camera_id}: photon transfer"))
+    p = cal.ptc
+    for key, unit in (("e_per_dn", "e-/DN"), ("read_noise_e", "e-"), ("dark_current_e_per_s", "e-/s"),
+                      ("black_level_dn", "DN"), ("full_well_e", "e-")):  # fmt: skip
+        est = getattr(p, key)
+        print(f"{key:>22} = {est.value:.5g} ± {est.std_error:.2g} {unit}")
+    print(f"{'linearity_error':>22} = {p.linearity_error_percent:.3g} %")
+    if cal.flat is not None:
+        print(f"{'flat field':>22}: vignetting {cal.flat.vignetting:.1%} at the corner, PRNU {cal.flat.prnu_rms:.2%}")
+    print(f"{cal.frames} frames, {cal.capture_time_s:.1f} s of capture")
+    for note in p.notes:
+        print(f"note: {note}")
+    for path in written:
+        print(f"wrote {path}")
+    return EXIT_OK
+
+
+def add_calibrate_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``gonio calibrate`` and its subcommands."""
+    cal = sub.add_parser("calibrate", help="calibrate the instrument (camera: photon transfer and flat field)",
+                         description="Calibrations of the instrument, one subcommand each.")  # fmt: skip
+    group = cal.add_subparsers(dest="calibration", required=True, metavar="WHAT")
+    camera = group.add_parser(
+        "camera", help="photon transfer and flat field of the rig's camera: camera_calibration.json",
+        description="Shows the camera a uniform light (on a real rig the operator is asked to place an integrating "
+        "sphere or a diffuser, and later to cap the lens), takes flat pairs at equally spaced exposures up to "
+        "saturation with dark pairs (EMVA 1288) and a flat-field series, and fits gain (e-/DN), read noise, dark "
+        "current, black level, full well and linearity with standard errors. Writes camera_calibration.json, "
+        "flat_field.npz and photon_transfer.png; a rig file uses them as [camera] calibration and flat_field.",
+        epilog="Example: gonio calibrate camera --rig examples/rig_simulated_raw.toml --out calib/",
+    )  # fmt: skip
+    camera.add_argument("--rig", help="rig file (TOML); default: the built-in simulated rig")
+    camera.add_argument("--out", default=".", help="folder for camera_calibration.json and the rest (default: .)")
+    camera.add_argument("--steps", type=int, default=32,
+                        help="exposures of the photon-transfer series, two flats and two darks each (default 32)")
+    camera.add_argument("--flat-frames", type=int, default=16,
+                        help="frames of the flat-field series; 0 for none (default 16)")  # fmt: skip
+    camera.add_argument("--quiet", action="store_true", help="no progress messages")
+    camera.set_defaults(func=_camera)

@@ -1,0 +1,106 @@
+"""Every wait on the camera is bounded: a capture that never returns becomes a camera fault, not a hung run.
+
+A camera backend talks to hardware (USB, GigE, a tethering folder) and can block forever or hand back
+nothing. ``BoundedCamera`` wraps any ``Camera`` and runs each call in a worker thread that the runner
+waits on for at most a deadline: the exposure being taken (``exposure_factor`` times it, for the readout
+and transfer of long frames) plus ``slack_s``. A call past its deadline raises ``CameraTimeout``; a
+capture that returns something other than a ``Frame`` raises ``CameraError``. Both are camera faults to
+the runner, which then leaves the rig safe (exit 4).
+
+The deadline is wall time, as it must be for a real device; ``slack_s`` is generous (a minute by
+default) so that a loaded host never turns into a camera fault. A thread left blocked in a dead driver is
+a daemon: it cannot keep the process from exiting, and after a timeout the camera is not called again.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from acquisition.frame import Camera, ExposureSettings, Frame
+
+T = TypeVar("T")
+
+
+class CameraError(RuntimeError):
+    """The camera answered with something that is not what was asked for (no frame, a wrong type)."""
+
+
+class CameraTimeout(CameraError):
+    """A camera call did not return within its deadline; the camera is not used again."""
+
+
+class BoundedCamera:
+    """A ``Camera`` whose every call returns within a deadline derived from the exposure (see the module doc)."""
+
+    def __init__(self, camera: Camera, *, slack_s: float = 60.0, exposure_factor: float = 2.0) -> None:
+        if not slack_s > 0:
+            raise ValueError(f"slack_s = {slack_s!r}: expected a positive number of seconds")
+        self._camera = camera
+        self.slack_s = float(slack_s)
+        self.exposure_factor = float(exposure_factor)
+        self._exposure_s = 0.0
+        self._dead: str | None = None
+
+    @property
+    def identity(self) -> str:
+        """The wrapped camera's identity."""
+        return self._camera.identity
+
+    def _call(self, what: str, call: Callable[[], T], exposure_s: float = 0.0) -> T:
+        if self._dead is not None:
+            raise CameraTimeout(f"{self._camera.identity}: {what} refused: {self._dead}")
+        deadline = self.slack_s + self.exposure_factor * exposure_s
+        box: dict[str, Any] = {}
+
+        def work() -> None:
+            try:
+                box["value"] = call()
+            except BaseException as exc:  # handed to the waiting thread, which raises it
+                box["error"] = exc
+
+        worker = threading.Thread(target=work, name=f"camera {what}", daemon=True)
+        worker.start()
+        worker.join(deadline)
+        if worker.is_alive():
+            self._dead = f"an earlier call ({what}) did not return within {deadline:g} s"
+            raise CameraTimeout(
+                f"{self._camera.identity}: {what} did not return within {deadline:g} s (exposure {exposure_s:g} s "
+                f"+ {self.slack_s:g} s slack): the camera or its driver hangs; check its cable and power"
+            )
+        if "error" in box:
+            raise box["error"]
+        return box["value"]
+
+    def set_exposure(self, exposure_s: float, gain: float | None = None) -> ExposureSettings:
+        """Set the exposure (s); returns what the camera applied."""
+        applied = self._call("set_exposure", lambda: self._camera.set_exposure(exposure_s, gain))
+        if not isinstance(applied, ExposureSettings):
+            raise CameraError(f"{self._camera.identity}: set_exposure returned {applied!r}, not ExposureSettings")
+        self._exposure_s = float(applied.exposure_s)
+        return applied
+
+    def capture(self) -> Frame:
+        """One frame at the exposure set, within the deadline."""
+        return self._frame("capture", self._camera.capture)
+
+    def __getattr__(self, name: str) -> Any:
+        # capture_dark exists only where the wrapped camera has it (the runner asks with getattr).
+        if name.startswith("_"):
+            raise AttributeError(name)
+        found = getattr(self._camera, name)
+        if name == "capture_dark":
+            return lambda: self._frame("capture_dark", found)
+        return found
+
+    def _frame(self, what: str, take: Callable[[], Frame]) -> Frame:
+        frame = self._call(what, take, self._exposure_s)
+        if not isinstance(frame, Frame):
+            raise CameraError(f"{self._camera.identity}: {what} returned {frame!r} instead of a Frame")
+        return frame
+
+    def close(self) -> None:
+        """Close the wrapped camera (within the slack; a hung close is left to its daemon thread)."""
+        if self._dead is None:
+            self._call("close", self._camera.close)
