@@ -41,6 +41,7 @@ _FIXED = {
     "index": ("int", "", "the point's index in the sweep file's list of directions"),
     "includes_cosine": ("bool", "", "true when brdf_* holds f_r cos(theta_o) instead of f_r"),
     "lower_bound": ("bool", "", "true when pixels saturated in every frame: the value is a lower bound"),
+    "dark": ("bool", "", "true when the ROI showed no light even after metering: the value is noise about zero"),
     "n_frames": ("int", "", "frames in the exposure bracket (top-up included)"),
     "total_exposure_s": ("float", "s", "sum of the bracket's exposure times"),
     "exposures_s": ("list", "s", "exposure time of each frame of the bracket, in capture order"),
