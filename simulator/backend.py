@@ -12,18 +12,18 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 
-from rig.run.backends import Instruments, RigBackend
+from rig.run.backends import Instruments, RigBackend, StartPose
 from rig.run.config import RigConfig
 from rig.run.hardware import dynamixel_options
 
 
 @contextlib.contextmanager
-def open_simulated(rig: RigConfig) -> Iterator[Instruments]:
-    """Start the simulated rig of a rig file and yield its link, camera, clock and reference tile."""
+def open_simulated(rig: RigConfig, start: StartPose | None = None) -> Iterator[Instruments]:
+    """Start the simulated rig of a rig file (its axes at ``start``, degrees) and yield its instruments."""
     from simulator.from_config import spec_from
     from simulator.rig import SimulatedRig
 
-    with SimulatedRig(spec_from(rig)) as sim:
+    with SimulatedRig(spec_from(rig), start=start) as sim:
         link = sim.open_link(options=dynamixel_options(rig))
         assert sim.camera is not None
         target = sim.reference if rig.file.reference.kind == "simulated" else None

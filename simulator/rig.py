@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import tempfile
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -116,8 +117,12 @@ class SimRigSpec:
 class SimulatedRig:
     """A running simulated rig; see the module docstring."""
 
-    def __init__(self, spec: SimRigSpec | None = None) -> None:
+    def __init__(self, spec: SimRigSpec | None = None, *, start: Mapping[str, float] | None = None) -> None:
         self.spec = spec or SimRigSpec()
+        self._start = dict(start or {})
+        unknown = sorted(set(self._start) - set(self.spec.geometry.joint_names))
+        if unknown:
+            raise SimulatedRigError(f"start pose names joints {unknown} the {self.spec.geometry.layout} rig lacks")
         self.axes = self.spec.resolved_axes()
         self.clock: Clock = ManualClock() if self.spec.time_scale is None else ScaledClock(self.spec.time_scale)
         self.material: MitsubaMaterial = to_mitsuba(self.spec.material)
@@ -142,8 +147,9 @@ class SimulatedRig:
                     "close it first"
                 )
             ids = [int(a.address) for a in self.axes]
-            # Servos start with the joints at 0 deg, the rig's rest pose.
-            positions = {int(a.address): round(a.to_units(min(max(0.0, a.min_deg), a.max_deg))) for a in self.axes}
+            # Servos start with the joints at 0 deg, the rig's rest pose, or where a resumed run left them.
+            at = {a.name: self._start.get(a.name, min(max(0.0, a.min_deg), a.max_deg)) for a in self.axes}
+            positions = {int(a.address): round(a.to_units(at[a.name])) for a in self.axes}
             bus = VirtualDynamixelBus(ids, self.spec.baudrate, self.clock, seed=self.spec.seed, positions=positions)
             bus.start()
             self.bus = bus
