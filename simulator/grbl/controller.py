@@ -83,6 +83,18 @@ class VirtualGrbl(GrblCore):
             return dict(zip(self.axes, self._positions(), strict=True))
 
     @property
+    def physical_position(self) -> dict[str, float]:
+        """Where each axis physically stands (units, homed machine coordinates: the switch at 0), steps whole.
+
+        This is what the machine does, not what it reports: a power-up zeroes the report, never the axes.
+        """
+        with self._lock:
+            self._advance(self._clock.now())
+            steps = [self.settings.steps_per_unit(i) for i in range(len(self.axes))]
+            where = zip(self.axes, self._positions(), self._offset, steps, strict=True)
+            return {a: round((p + o) * n) / n for a, p, o, n in where}
+
+    @property
     def planner_blocks(self) -> int:
         """Blocks queued in the planner (including the one executing)."""
         with self._lock:
