@@ -9,8 +9,12 @@ from rig.instrument.geometry import JointLimits, RigGeometry
 from rig.instrument.kinematics import Joints, inverse, require
 from rig.instrument.links.grbl_protocol import GrblError
 from rig.run.config import GRBL_PULLOFF_DEG, default_axes, default_grbl_axes
+from rig.run.motion_guard import MotionGuard
+from rig.run.session import make_plan
+from simulator.from_config import spec_from
 from simulator.grbl_rig import SimulatedGrblRig, grbl_settings
 from simulator.rig import SimRigSpec, SimulatedRigError
+from tests.run_helpers import in_plane_sweep, sim_rig
 from tests.simulator.test_sim_rig import measure, predicted_counts
 
 pytestmark = pytest.mark.mitsuba
@@ -96,3 +100,26 @@ def test_axes_that_are_not_grbl_letters_are_refused() -> None:
     with pytest.raises(SimulatedRigError, match="axis 'light': address 1 is not a GRBL axis letter"):
         SimulatedGrblRig(SimRigSpec(axes=default_axes(RigGeometry())))  # Dynamixel ids
 
+
+def test_the_runtime_guard_plans_a_move_from_where_the_arms_really_are() -> None:
+    # A resumed GRBL run: the arms stand at STOPPED, the reopened port reports the switch pose. The guard must
+    # not check the path from there: it reads the joints back only once the link has homed.
+    rig_config = sim_rig(on="grbl")
+    plan = make_plan(rig_config, in_plane_sweep([30.0], [-40.0, 40.0]))
+    guard = MotionGuard(plan.paths, [p.joints for p in plan.points])
+    with SimulatedGrblRig(spec_from(rig_config), start=STOPPED) as rig, rig.open_link() as link:
+        seen: list[tuple[dict[str, float], Joints]] = []
+        read = link.read_positions
+
+        def spied() -> dict[str, float]:
+            got = read()
+            seen.append((got, rig.joints_now()))
+            return got
+
+        link.read_positions = spied  # type: ignore[method-assign]
+        target = {k: float(v) for k, v in plan.points[0].joints.as_dict().items() if k in plan.paths.names}  # type: ignore[union-attr]
+        legs = guard.legs(link, target)
+        assert seen and legs[-1] == target
+        for reported, physical in seen:  # every read-back the guard used is where the machine is
+            assert reported["light"] == pytest.approx(physical.light, abs=0.12)
+            assert reported["camera"] == pytest.approx(physical.camera, abs=0.12)
