@@ -40,6 +40,7 @@ log = logging.getLogger(__name__)
 RX_BUFFER_BYTES = 128
 _READ_SLICE_S = 0.01  # pyserial read timeout: the granularity of every wall-time wait
 _RESET = b"\x18"
+_UNPLUGGED = "is the cable or the controller unplugged?"
 # Alarms after which GRBL resets itself and prints its banner (3 and 6 are the result of a reset, not a cause).
 _RESET_FOLLOWS = frozenset({7, 8, 9, 10})
 
@@ -174,7 +175,7 @@ class GrblSession:
         except serial.SerialTimeoutException as exc:
             raise GrblTimeoutError(f"GRBL on {self.port}: write timed out ({exc})") from exc
         except (serial.SerialException, OSError) as exc:
-            raise GrblError(f"GRBL on {self.port}: write failed: {exc}") from exc
+            raise GrblError(f"GRBL on {self.port}: write failed: {exc}; {_UNPLUGGED}") from exc
 
     def send(self, line: str) -> int:
         """Queue ``line`` as soon as it fits in GRBL's receive buffer (character counting); its sequence number."""
@@ -324,7 +325,7 @@ class GrblSession:
                     return None
                 self._rx += self._ser.read(waiting or 1)  # blocks at most _READ_SLICE_S for the first byte
             except (serial.SerialException, OSError) as exc:
-                raise GrblError(f"GRBL on {self.port}: read failed: {exc}") from exc
+                raise GrblError(f"GRBL on {self.port}: read failed: {exc}; {_UNPLUGGED}") from exc
 
     def _handle(self, line: str) -> None:
         """Dispatch one line from GRBL; raises for ``error:N``, ``ALARM:N`` and unexpected resets."""
