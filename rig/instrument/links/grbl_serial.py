@@ -149,7 +149,12 @@ class GrblSession:
                 log.warning("GRBL on %s: error closing the port: %s", self.port, exc)
 
     def status(self) -> GrblStatus:
-        """Send ``?`` and handle every line up to the report; retries when a report goes missing."""
+        """Send ``?`` and handle every line up to the report; retries when a report goes missing.
+
+        Lines already waiting are handled first: a report that came after its query was given up on (and
+        asked again) must not pass for the answer to this one, or the link acts on where the axes were.
+        """
+        self._take_waiting()
         for _ in range(self._status_retries + 1):
             count = self._status_count
             self.write_realtime(b"?")
@@ -165,6 +170,11 @@ class GrblSession:
         raise GrblTimeoutError(
             f"GRBL on {self.port}: no status report to {tries} '?' ({self._reply_timeout_s:g} s each)"
         )
+
+    def _take_waiting(self) -> None:
+        """Handle every complete line already received, without waiting for more."""
+        while (line := self._read_line(0.0)) is not None:
+            self._handle(line)
 
     def write_realtime(self, data: bytes) -> None:
         """Send real-time bytes (``?``, ``!``, ``~``, 0x18), which bypass GRBL's line buffer."""
