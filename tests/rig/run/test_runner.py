@@ -247,19 +247,21 @@ def test_reference_drift_is_flagged_and_corrected_by_interpolation(tmp_path: Pat
     assert np.max(np.abs(got / truth - 1)) < 0.5 * np.max(np.abs(raw / truth - 1))
 
 
-def test_two_runs_never_share_a_directory(tmp_path: Path) -> None:
-    rig, sweep = sim_rig(), _sweep()
+def test_two_runs_never_share_a_directory(tmp_path: Path, link: str) -> None:
+    rig, sweep = sim_rig(on=link), _sweep()
     start_run(rig, sweep, tmp_path / "run", progress=False)
     with pytest.raises(RunStoreError, match="run"):
         start_run(rig, sweep, tmp_path / "run", progress=False)
     assert json.loads((tmp_path / "run" / "status.json").read_text())["state"] == "finished"
 
 
-def test_a_bracket_planned_from_a_dark_point_that_clips_at_a_glossy_peak_is_metered_afresh(tmp_path: Path) -> None:
+def test_a_bracket_planned_from_a_dark_point_that_clips_at_a_glossy_peak_is_metered_afresh(
+    tmp_path: Path, link: str
+) -> None:
     # A glossy lobe seen right after a dark off-peak point: the bracket planned from the dark level clips
     # every ROI pixel, which must lead to fresh metering (not a camera fault, nor a mean of the unclipped).
     glossy = {"model": "CookTorrance", "alpha": 0.1, "eta": [0.18, 0.42, 1.37], "k": [3.42, 2.35, 1.77]}
-    rig = sim_rig(glossy, camera={"roi": [14, 14, 18, 18]})
+    rig = sim_rig(glossy, on=link, camera={"roi": [14, 14, 18, 18]})
     doc = {"sweep": {"kind": "list", "order": False, "points": [[30.0, 0.0, 70.0, 90.0], [30.0, 0.0, 30.0, 180.0]]},
            "capture": {"target_snr": 100.0}}  # fmt: skip
     sweep = sweep_config(parse(doc, SweepFile, "t.toml"), "t.toml")
