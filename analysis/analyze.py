@@ -101,13 +101,16 @@ def _plain(value: Any) -> Any:
 
 
 def fit_json(a: Analysis) -> dict[str, Any]:
-    """The content of fit.json: source, every candidate's fit, the chosen model and its parameters."""
+    """The content of fit.json: source, every candidate's fit, the chosen model and its parameters (no timings)."""
     sel = a.selection
     best = min(c.criterion(sel.criterion) for c in sel.candidates)
     cands = []
     for c in sel.candidates:
+        # time_s stays a field but is null: wall-clock time differs from run to run, and fit.json must be a
+        # function of the inputs alone (a batch writes the same bytes as gonio analyze). The progress lines print
+        # the times; a batch keeps them in its task records and catalogue (analysis/batch/).
         doc: dict[str, Any] = {"name": c.name, "k": c.n_params, "fitted": c.result is not None, "error": c.error,
-                               "time_s": a.fit_times_s.get(c.name)}  # fmt: skip
+                               "time_s": None}  # fmt: skip
         if c.result is not None:
             r = c.result
             doc |= {

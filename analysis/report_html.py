@@ -118,17 +118,17 @@ def _selection(a: Analysis) -> str:
     best = min(c.criterion(sel.criterion) for c in sel.candidates)
     rows = []
     for c in sel.candidates:
-        t = f"{a.fit_times_s.get(c.name, math.nan):.2f}"
         if c.result is None:
             rows.append(([escape(c.name), str(c.n_params), f"not fitted: {escape(str(c.error))}", "", "", "", "", "",
-                          "", t], ""))  # fmt: skip
+                          ""], ""))  # fmt: skip
             continue
         r = c.result
         rows.append(([escape(c.name) + (" (chosen)" if r is sel.chosen else ""), str(c.n_params), _num(r.chi2, ".5g"),
                       _num(r.reduced_chi2), _num(r.p_value, ".3g"), _num(r.aic, ".5g"), _num(r.bic, ".5g"),
-                      _num(c.criterion(sel.criterion) - best, ".3g"), "yes" if r.noise_reached else "no", t],
+                      _num(c.criterion(sel.criterion) - best, ".3g"), "yes" if r.noise_reached else "no"],
                      "chosen" if r is sel.chosen else ""))  # fmt: skip
-    header = ["candidate", "k", "chi2", "chi2/dof", "p", "AIC", "BIC", f"Δ{crit}", "at noise", "fit time (s)"]
+    # No fit times: the page, like fit.json, depends on the inputs alone (the same bytes from a batch).
+    header = ["candidate", "k", "chi2", "chi2/dof", "p", "AIC", "BIC", f"Δ{crit}", "at noise"]
     return _table(header, rows) + f"<p>{escape(sel.reason)}</p>"
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
+from matplotlib import rc_context
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import ListedColormap, Normalize
@@ -50,6 +51,8 @@ CHANNEL_COLOURS = ("#D55E00", "#009E73", "#0072B2")
 CANDIDATE_COLOURS = ("#E69F00", "#56B4E9", "#CC79A7", "#F0E442", "#999999", "#882255")
 LOG_RANGE = 50.0
 PHI_D_SNAP_DEG = 0.5
+#: Salt of the SVG element ids (any fixed string: ids must not change between runs).
+SVG_SALT = "gonio"
 
 
 @dataclass(frozen=True)
@@ -182,7 +185,10 @@ def _save(fig: Figure, out: Path, name: str) -> tuple[Path, Path]:
     png, svg = out / f"{name}.png", out / f"{name}.svg"
     write_atomic(png, lambda tmp: fig.savefig(tmp, format="png", dpi=100))
     fig.set_layout_engine("none")  # the layout is done; the SVG needs no second pass of it
-    write_atomic(svg, lambda tmp: fig.savefig(tmp, format="svg"))
+    # The same figure gives the same bytes: no date in the metadata, element ids hashed with a fixed salt
+    # (matplotlib salts them with a random UUID otherwise), so a batch writes exactly what gonio analyze does.
+    with rc_context({"svg.hashsalt": SVG_SALT}):
+        write_atomic(svg, lambda tmp: fig.savefig(tmp, format="svg", metadata={"Date": None}))
     return png, svg
 
 

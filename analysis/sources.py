@@ -29,6 +29,16 @@ def _describe_material(table: Any) -> str:
     return f"{table.model}({params})"
 
 
+def _check_complete(rows: list[dict[str, Any]], table: Path) -> None:
+    """Refuse a table with a short or long row (a copy cut off, a stray comma): its values would be misread."""
+    for number, row in enumerate(rows, 2):  # line 1 is the header
+        if None in row or any(v is None for v in row.values()):
+            short = [k for k, v in row.items() if v is None and k is not None]
+            what = f"no {', '.join(short[:3])}{', ...' if len(short) > 3 else ''}" if short else "extra fields"
+            raise AnalysisError(f"{table}: line {number} has {what}: the table is cut short or corrupt (the "
+                                f"journal {table.parent / JOURNAL} still holds every point)")  # fmt: skip
+
+
 def load_run(path: Path, log: Log, errors: str = "total") -> tuple[SourceSummary, Samples, list[Reference]]:
     """A run directory's samples (its table, or its journal if unfinished), summary and the simulated truth."""
     try:
@@ -42,6 +52,7 @@ def load_run(path: Path, log: Log, errors: str = "total") -> tuple[SourceSummary
     table = path / "samples.csv"
     if table.is_file():
         rows: list[dict[str, Any]] = list(store.read_table())
+        _check_complete(rows, table)
     elif status["state"] == "finished":
         raise AnalysisError(f"{path}: the run is marked finished but has no samples.csv ({table})")
     else:  # a stopped or running run has only its journal: build the table the runner would have written

@@ -16,6 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
+# Re-exported for the benchmarks; they live in analysis because the simulation study's report writes them too.
+from analysis.tables import format_table as format_table
+from analysis.tables import markdown_table as markdown_table
+
 #: Where benchmarks write figures unless told otherwise (git-ignored).
 DEFAULT_OUT = Path("out/bench")
 
@@ -84,23 +88,6 @@ def uniform_hemisphere(rng: np.random.Generator, n: int, dtype: type[np.floating
     r = np.sqrt(1.0 - z * z)
     phi = 2.0 * np.pi * rng.random(n)
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1).astype(dtype)
-
-
-def format_table(headers: list[str], rows: list[list[str]]) -> str:
-    """A plain-text table with right-aligned columns, the header underlined; cells are preformatted."""
-    widths = [max(len(str(r[i])) for r in [headers, *rows]) for i in range(len(headers))]
-
-    def line(cells: list[str]) -> str:
-        return "  ".join(str(c).rjust(w) for c, w in zip(cells, widths, strict=True))
-
-    return "\n".join([line(headers), "  ".join("-" * w for w in widths), *(line(r) for r in rows)])
-
-
-def markdown_table(headers: list[str], rows: list[list[str]]) -> str:
-    """A GitHub-style markdown table; cells are preformatted strings, one list per row."""
-    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("-" * (len(h) + 2) for h in headers) + "|"]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines)
 
 
 def write_section(path: Path, name: str, body: str) -> None:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from gonio.cli_adaptive import add_adaptive_parser
 from gonio.cli_analyze import add_analyze_parser
+from gonio.cli_batch import add_batch_parser
 from gonio.cli_calibrate import add_calibrate_parser
 from gonio.cli_run import EXIT_BAD_INPUT, EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_OK, add_run_parsers
 from gonio.cli_servo import add_servo_parser
@@ -46,6 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     models.add_argument("--out", default="out/models", help="output directory (default: out/models)")
     models.set_defaults(func=_models)
     add_analyze_parser(sub)
+    add_batch_parser(sub)
     add_adaptive_parser(sub)
     add_calibrate_parser(sub)
     add_servo_parser(sub)

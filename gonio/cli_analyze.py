@@ -53,6 +53,13 @@ def add_analyze_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     )  # fmt: skip
     p.add_argument("source", help="run directory or MERL .binary file")
     p.add_argument("--out", help="report directory (default: RUN/analysis, or <name>-analysis beside a MERL file)")
+    add_fit_options(p)
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=_analyze)
+
+
+def add_fit_options(p: argparse.ArgumentParser) -> None:
+    """The options of how an analysis fits and reports (gonio analyze, and gonio batch analyze for every input)."""
     p.add_argument("--models", help=f"comma-separated ladder (default: lambert, lambert_ggx, lambert_ggx_schlick, "
                    f"ward); known: {_MODELS_HELP}")  # fmt: skip
     # No `choices` from model.fit: importing it (scipy) would slow every gonio command; analyze checks the name.
@@ -68,5 +75,3 @@ def add_analyze_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     p.add_argument("--y-scale", default="auto", choices=("auto", "log", "linear"),
                    help="slices' y axis (default auto: log when the values span more than 50x)")  # fmt: skip
     p.add_argument("--merl", action="store_true", help="also export the chosen model as a MERL .binary (35 MB)")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
-    p.set_defaults(func=_analyze)

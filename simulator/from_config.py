@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 
 from acquisition.noise import SensorNoise
 from rig.instrument.alignment import Alignment
 from rig.run.config import ConfigError, RigConfig, material_from
 from rig.run.config_schema import Misalignment
 from simulator.camera.pixels import PixelResponse
+from simulator.grbl_rig import SimulatedGrblRig
 from simulator.render.spec import CameraSpec, LightSpec
-from simulator.rig import SimRigSpec
+from simulator.rig import SimRigSpec, SimulatedRig
 
 
 def spec_from(rig: RigConfig) -> SimRigSpec:
@@ -60,3 +62,14 @@ def spec_from(rig: RigConfig) -> SimRigSpec:
 def alignment_from(table: Misalignment) -> Alignment:
     """The geometric part of ``[simulation.misalignment]`` as an Alignment (the simulated rig's truth)."""
     return Alignment(**table.model_dump(include={f.name for f in dataclasses.fields(Alignment)}))
+
+
+def rig_from(
+    rig: RigConfig, *, spec: SimRigSpec | None = None, start: Mapping[str, float] | None = None
+) -> SimulatedRig:
+    """The (unstarted) simulated rig of a rig file, on the link its ``[simulation] link`` names.
+
+    ``spec`` replaces ``spec_from(rig)`` (a test's variation of it); ``start`` is where the axes stand (degrees).
+    """
+    cls = SimulatedGrblRig if rig.file.simulation.link == "grbl" else SimulatedRig
+    return cls(spec if spec is not None else spec_from(rig), start=start)

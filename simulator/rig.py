@@ -162,13 +162,7 @@ class SimulatedRig:
                     f"a simulated rig is already running in this process (bus on {_active[0].port}); "
                     "close it first"
                 )
-            ids = [int(a.address) for a in self.axes]
-            # Servos start with the joints at 0 deg, the rig's rest pose, or where a resumed run left them.
-            at = {a.name: self._start.get(a.name, min(max(0.0, a.min_deg), a.max_deg)) for a in self.axes}
-            positions = {int(a.address): round(a.to_units(at[a.name])) for a in self.axes}
-            bus = VirtualDynamixelBus(ids, self.spec.baudrate, self.clock, seed=self.spec.seed, positions=positions)
-            bus.start()
-            self.bus = bus
+            self._start_axes()
             dng_dir = self.spec.dng_dir
             if self.spec.camera_output == "dng" and dng_dir is None:
                 self._dng_tmp = tempfile.TemporaryDirectory(prefix="gonio-sim-dng-")
@@ -183,6 +177,25 @@ class SimulatedRig:
             )  # fmt: skip
             _active.append(self)
         return self
+
+    def start_pose(self) -> dict[str, float]:
+        """Joint angles (degrees) the axes stand at when the rig starts: the rest pose (0), or ``start``."""
+        return {a.name: self._start.get(a.name, min(max(0.0, a.min_deg), a.max_deg)) for a in self.axes}
+
+    def _start_axes(self) -> None:
+        """Bring up what moves the joints: one virtual servo per joint, at ``start_pose()``."""
+        ids = [int(a.address) for a in self.axes]
+        at = self.start_pose()
+        positions = {int(a.address): round(a.to_units(at[a.name])) for a in self.axes}
+        bus = VirtualDynamixelBus(ids, self.spec.baudrate, self.clock, seed=self.spec.seed, positions=positions)
+        bus.start()
+        self.bus = bus
+
+    def physical_units(self, axis: Axis) -> float:
+        """Where ``axis``'s joint physically stands now, in device units (servo ticks, backlash included)."""
+        if self.bus is None:
+            raise SimulatedRigError("the simulated rig is not running")
+        return self.bus.servo(int(axis.address)).physical_position_ticks()
 
     def __enter__(self) -> SimulatedRig:
         return self.start()
@@ -219,10 +232,7 @@ class SimulatedRig:
 
     def joints_now(self) -> Joints:
         """Joint angles in degrees the servos physically hold now (backlash included)."""
-        if self.bus is None:
-            raise SimulatedRigError("the simulated rig is not running")
-        values = {a.name: a.to_degrees(self.bus.servo(int(a.address)).physical_position_ticks()) for a in self.axes}
-        return Joints.from_dict(values)
+        return Joints.from_dict({a.name: a.to_degrees(self.physical_units(a)) for a in self.axes})
 
     def show(self, reference: bool, reading: int | None = None) -> None:
         """Put the reference tile (True) or the sample (False) in view of the camera.
@@ -244,8 +254,7 @@ class SimulatedRig:
         self._showing, self._shown = key, material
 
     def _state_key(self) -> tuple[object, ...]:
-        assert self.bus is not None
-        ticks = tuple(round(self.bus.servo(int(a.address)).physical_position_ticks(), 3) for a in self.axes)
+        ticks = tuple(round(self.physical_units(a), 3) for a in self.axes)
         key: tuple[object, ...] = (ticks, repr(self._showing))
         if self.flat_source.state != "off":
             key = (*key, self.flat_source.state)

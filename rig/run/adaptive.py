@@ -12,8 +12,8 @@ densely near 0 (the specular lobe, where a narrow peak hides between cosine-rand
 phi_i = 0 for isotropic samples and filtered by the rig's kinematics. The first round is a space-filling
 pick over the candidates in (theta_h, theta_d, phi_d), since there is no fit to ask yet.
 
-Written to OUT: ``samples.csv`` (every round's table rows, with a ``round`` column) and ``adaptive.json``
-(per round: points, rig time, the fit's parameters, the measured and predicted errors).
+Written to OUT: ``samples.csv`` (every round's table rows, with a ``round`` column; ``samples.parquet`` beside
+it) and ``adaptive.json`` (per round: points, rig time, the fit's parameters, the measured and predicted errors).
 """
 
 from __future__ import annotations
@@ -50,6 +50,7 @@ from rig.instrument.kinematics import solve_degrees
 from rig.run.config import RigConfig, parse, sweep_config
 from rig.run.config_schema import SweepFile
 from rig.run.sweeps import directions_to_half_diff, half_diff_to_directions
+from rig.run.table_parquet import write_beside
 
 FloatArray = npt.NDArray[np.float64]
 #: Relative noise assumed where a fitted value is below this fraction of the median (keeps sigma > 0).
@@ -202,15 +203,15 @@ def round_rig(rig: RigConfig, index: int) -> RigConfig:
     """
     if index == 0:
         return rig
-    return _with(rig, "simulation", seed=(rig.file.simulation.seed * 1_000_003 + index) % 2**63)
+    return replace_table(rig, "simulation", seed=(rig.file.simulation.seed * 1_000_003 + index) % 2**63)
 
 
 def with_reference_snr(rig: RigConfig, snr: float | None) -> RigConfig:
     """The rig with its reference readings' SNR goal replaced (None: unchanged)."""
-    return rig if snr is None else _with(rig, "reference", target_snr=float(snr))
+    return rig if snr is None else replace_table(rig, "reference", target_snr=float(snr))
 
 
-def _with(rig: RigConfig, table: str, **keys: Any) -> RigConfig:
+def replace_table(rig: RigConfig, table: str, **keys: Any) -> RigConfig:
     """The rig with keys of one table of its file replaced."""
     new = getattr(rig.file, table).model_copy(update=keys)
     return dataclasses.replace(rig, file=rig.file.model_copy(update={table: new}))
@@ -276,6 +277,7 @@ def _write(out: Path, rows: Sequence[dict[str, Any]], result: AdaptiveResult) ->
         w = csv.DictWriter(fh, fieldnames=names)
         w.writeheader()
         w.writerows(rows)
+    write_beside(table, rows)
     doc = [{"round": r.index, "captures": r.captures, "rig_time_s": r.rig_time_s, "model": r.fit.spec,
             "params": dict(zip(r.fit.names, r.fit.values.tolist(), strict=True)),
             "reduced_chi2": r.fit.reduced_chi2, "predicted_error": r.predicted_error,

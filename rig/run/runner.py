@@ -48,6 +48,7 @@ from rig.run.plan import Plan, PlannedPoint
 from rig.run.reference import ReferenceTarget
 from rig.run.store import JOURNAL, RunStore
 from rig.run.table import build_rows
+from rig.run.table_parquet import write_beside
 
 TorquePolicy = Literal["torque_off", "hold"]
 
@@ -382,6 +383,7 @@ class Runner:
                           albedo=ref.albedo if ref else None, albedo_std_error=ref.albedo_std_error if ref else 0.0,
                           include_cosine=self.options.include_cosine)  # fmt: skip
         path = self.store.write_table(rows)
+        write_beside(path, rows)  # samples.parquet, for tools that read Parquet
         self.store.mark_finished({"points": len(rows), "skipped": len(self.plan.skipped)})
         return str(path)
 

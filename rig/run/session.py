@@ -84,7 +84,7 @@ def make_plan(rig: RigConfig, sweep: SweepConfig) -> Plan:
         exposure_s_per_point=per_point, reference_every=ref.every if ref else 0,
         reference_s=per_point if ref else 0.0, reference_joints=ref.joints if ref else None,
         order=sweep.file.sweep.order, isotropic=sweep.file.sweep.isotropic,
-        coordinated=backend(rig.file.link.kind).coordinated, alignment=rig.alignment,
+        coordinated=backend(rig.file.link.kind).for_file(rig.file).coordinated, alignment=rig.alignment,
     )  # fmt: skip
 
 

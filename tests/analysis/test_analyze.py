@@ -152,6 +152,28 @@ def test_the_report_shows_source_choice_reason_warnings_and_figures(gold_report:
     assert re.search(r"\d+ of 81 \(theta_h, theta_d\) cells", html)
 
 
+def same_files(a: Path, b: Path) -> list[str]:
+    """Relative paths of every file under a and b, after checking both trees hold the same files byte for byte."""
+    names = sorted(str(p.relative_to(a)) for p in a.rglob("*") if p.is_file())
+    assert names == sorted(str(p.relative_to(b)) for p in b.rglob("*") if p.is_file())
+    differ = [n for n in names if (a / n).read_bytes() != (b / n).read_bytes()]
+    assert not differ, f"differ between {a} and {b}: {differ}"
+    return names
+
+
+@pytest.mark.mitsuba
+def test_the_same_inputs_give_the_same_bytes(gold_report: tuple[Analysis, Path], gold_run: Path,
+                                             tmp_path: Path) -> None:
+    # A batch must never be a different analysis: everything gonio analyze writes depends on the inputs alone
+    # (no wall-clock fit times, no dates or random ids in the SVGs).
+    _, page = gold_report
+    again = analyze(gold_run, tmp_path / "again", models=parse_models("lambert,lambert_ggx_schlick,ggx_conductor"))
+    names = same_files(page.parent, again.parent)
+    assert {"fit.json", "index.html", "figures/slices.svg", "export/material.json"} <= set(names)
+    assert all(c["time_s"] is None for c in fit_doc(again.parent)["candidates"])
+    assert "<dc:date>" not in (again.parent / "figures" / "polar.svg").read_text()
+
+
 @pytest.mark.mitsuba
 def test_a_stopped_run_is_analysed_as_far_as_it_got_with_a_warning(gold_run: Path, tmp_path: Path, capsys) -> None:
     run = stopped_copy(gold_run, tmp_path / "run", points=11)
@@ -241,6 +263,17 @@ def test_a_run_with_too_few_points_names_the_run_and_the_fit_error(gold_run: Pat
     assert not (run / "analysis").exists()
     assert cli.main(["analyze", str(gold_run), "--samples", "100", "--quiet"]) == 2
     assert "only a MERL source is subsampled" in capsys.readouterr().err
+
+
+@pytest.mark.mitsuba
+def test_a_table_cut_short_is_refused_naming_the_line(gold_run: Path, tmp_path: Path, capsys) -> None:
+    run = tmp_path / "run"
+    shutil.copytree(gold_run, run, ignore=shutil.ignore_patterns("analysis", "lock"))
+    lines = (run / "samples.csv").read_text().splitlines(keepends=True)
+    (run / "samples.csv").write_text("".join(lines[:4]) + lines[4][: len(lines[4]) // 2])  # a copy cut mid-row
+    assert cli.main(["analyze", str(run), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"{run / 'samples.csv'}: line 5 has no " in err and "cut short or corrupt" in err, err
 
 
 def test_help_shows_an_example(capsys) -> None:

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 from model.fit.design import brdf_error, error_pairs
@@ -92,6 +93,9 @@ def test_an_adaptive_sweep_runs_rounds_refits_and_lowers_its_predicted_error(tmp
     with open(result.table, newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == 32 and {r["round"] for r in rows} == {"0", "1", "2"}
+    merged = pq.read_table(result.table.with_suffix(".parquet"))  # the same rows, typed, beside the CSV
+    assert merged.num_rows == 32 and merged.column("round").to_pylist() == [int(r["round"]) for r in rows]
+    assert merged.column("brdf_r").to_pylist() == [float(r["brdf_r"]) for r in rows]
     later = np.array([[float(r[k]) for k in ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg")]
                       for r in rows if r["round"] != "0"])  # fmt: skip
     assert np.mean(directions_to_half_diff(later)[:, 0] < 10.0) >= 0.3

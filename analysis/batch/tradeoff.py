@@ -1,4 +1,9 @@
-"""Helpers of ``bench.sweep_tradeoff``: the materials, the sweep designs of a given size, one measured fit, the plot.
+"""The study of bench/sweep_tradeoff (``gonio batch study`` without files): its materials and sweep designs.
+
+Three known materials on the simulated rig (a rough metal, a glossy plastic, a matte diffuse), each fitted
+with its own model family; designs are regular grids in (theta_i, theta_o, phi_o), Rusinkiewicz
+half/difference grids and the adaptive sweep of ``rig.run.adaptive`` at three capture SNRs
+(analysis/batch/study.py runs each as a task, analysis/batch/study_report.py tabulates and draws them).
 
 Every design is isotropic (phi_i = 0, phi_o in [0, 180]) and keeps both zeniths at or below ``MAX_THETA``,
 the part of the hemisphere where the simulated rig's readings agree with the point model (beyond it the
@@ -11,19 +16,14 @@ from __future__ import annotations
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from model.fit.design import ErrorPairs, brdf_error
-from model.fit.samples import Samples
-from model.fit.solve import fit
 from model.fit.spec import LAMBERT, FitSpec, ggx_conductor, lambert_ggx
 from rig.instrument.kinematics import solve_degrees
-from rig.run.adaptive import measure_points
-from rig.run.config import RigConfig, material_from, parse, rig_config
+from rig.run.config import RigConfig, parse, rig_config
 from rig.run.config_schema import RigFile
 from rig.run.sweeps import half_diff_to_directions, normalise, unique_rows
 
@@ -59,6 +59,10 @@ MATERIALS = (
     Material("glossy plastic (Lambert + GGX, alpha 0.08)", PLASTIC, lambert_ggx("dielectric")),
     Material("matte diffuse (Lambert)", MATTE, LAMBERT),
 )
+#: Command-line names of MATERIALS, in order.
+KEYS = ("metal", "plastic", "matte")
+#: Captures of an adaptive sweep.
+BUDGET = 100
 
 
 def rig_for(material: Material, seed: int = 1) -> RigConfig:
@@ -123,73 +127,6 @@ def rusinkiewicz_design(rig: RigConfig, n: int) -> FloatArray:
     return best
 
 
-@dataclass(frozen=True)
-class Outcome:
-    """One design measured and fitted: captures, rig time (s), relative BRDF error (total, shape), chi2/dof."""
-
-    strategy: str
-    captures: int
-    rig_time_s: float
-    error: float
-    shape_error: float
-    reduced_chi2: float
-
-
-def measure_and_fit(rig: RigConfig, material: Material, strategy: str, pts: FloatArray, out: Path,
-                    pairs: ErrorPairs) -> Outcome:  # fmt: skip
-    """Run the design on the simulated rig into ``out``, fit the material's spec, and score the fit."""
-    import warnings
-
-    rows, rig_time_s = measure_points(rig, pts, out, SNR)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res = fit(material.spec, Samples.from_table_rows(rows, source=str(out), errors="point"), starts=4, warn=False)
-    truth = material_from(rig)
-    err, shape = brdf_error(res.model, truth, pairs), brdf_error(res.model, truth, pairs, scale_free=True)
-    return Outcome(strategy, len(rows), rig_time_s, err, shape, res.reduced_chi2)
-
-
-def plot(results: dict[str, list[Outcome]], goal: dict[str, float], path: Path) -> Path:
-    """Error against captures (top) and rig hours (bottom), one column per material; writes a PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    names = list(results)
-    fig, axes = plt.subplots(2, len(names), figsize=(5.0 * len(names), 7.5), squeeze=False)
-    styles: dict[str, tuple[str, str]] = {
-        "grid": ("o-", "tab:blue"),
-        "rusinkiewicz": ("s-", "tab:green"),
-        "adaptive": ("D-", "tab:red"),
-        "adaptive SNR 300": ("^-", "tab:purple"),
-        "adaptive SNR 500": ("v-", "tab:brown"),
-    }
-    for col, name in enumerate(names):
-        for row, key in enumerate(("captures", "rig_time_s")):
-            ax = axes[row][col]
-            for strat, (fmt, colour) in styles.items():
-                pts = sorted((o for o in results[name] if o.strategy == strat), key=lambda o: o.captures)
-                if not pts:
-                    continue
-                x = [o.captures if key == "captures" else o.rig_time_s / 3600.0 for o in pts]
-                ax.plot(x, [o.error for o in pts], fmt, color=colour, ms=4, label=strat)
-            ax.axhline(goal[name], color="0.4", ls=":", lw=1, label="dense grid (~1000)")
-            ax.set_xscale("log")
-            ax.set_yscale("log")
-            ax.set_xlabel("captures" if key == "captures" else "rig time (h)")
-            ax.set_ylabel("relative BRDF error")
-            ax.grid(True, which="both", alpha=0.3)
-            if row == 0:
-                ax.set_title(name, fontsize=10)
-        axes[0][col].legend(fontsize=8)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
 def sizes(quick: bool) -> tuple[Sequence[int], Sequence[int]]:
     """Grid and Rusinkiewicz design sizes (captures) to measure."""
     if quick:
@@ -197,12 +134,3 @@ def sizes(quick: bool) -> tuple[Sequence[int], Sequence[int]]:
     return (30, 100, 300, 1000), (30, 100, 300)
 
 
-def mean_outcomes(runs: Sequence[Sequence[Outcome]]) -> list[Outcome]:
-    """Outcomes averaged over repeated runs (noise realisations), matched by design and captures."""
-    groups: dict[tuple[str, int], list[Outcome]] = {}
-    for run in runs:
-        for o in run:
-            groups.setdefault((o.strategy, o.captures), []).append(o)
-    return [Outcome(k[0], k[1], *(float(np.mean([getattr(o, f) for o in g]))
-                                  for f in ("rig_time_s", "error", "shape_error", "reduced_chi2")))
-            for k, g in groups.items()]  # fmt: skip
