@@ -34,6 +34,8 @@ bench: $(STAMP)
 	$(BIN)/python -m bench.fit
 	$(BIN)/python -m bench.batch
 	$(BIN)/python -m bench.camera_calibration
+	$(BIN)/python -m bench.geometry_calibration --rigs 8
+	$(BIN)/python -m bench.calibration_payoff
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -23,6 +23,7 @@ from acquisition.files.atomic import write_atomic
 from analysis.ladder import fit_ladder
 from analysis.result import Analysis, AnalysisError, Log, Reference
 from analysis.sources import DEFAULT_MERL_SAMPLES, load_merl, load_run, read_merl_source
+from analysis.uncertainty import uncertainty_json
 from model.base import Model
 from model.fit.samples import FitError
 from model.fit.select import default_ladder
@@ -72,11 +73,14 @@ def load_and_fit(
             refs.append(Reference(f"MERL reference {Path(compare).name}", read_merl_source(Path(compare), "--compare")))
     loaded = [f"{w.category.__name__}: {w.message}" for w in got]
     try:
-        selection, times, caught = fit_ladder(data, ladder, loss=loss, starts=starts, seed=seed, log=say)
+        angular: dict[str, Any] = {}
+        selection, times, caught = fit_ladder(data, ladder, loss=loss, starts=starts, seed=seed, log=say,
+                                              angular=angular)  # fmt: skip
     except FitError as exc:
         raise AnalysisError(f"{path}: cannot fit: {exc}") from exc
+    variance = angular.get(selection.chosen_name) if data.direction_cov.size else None
     return Analysis(summary, data, ladder, selection, times, tuple(dict.fromkeys(loaded + caught)), tuple(refs),
-                    loss, starts, errors)  # fmt: skip
+                    loss, starts, errors, variance)  # fmt: skip
 
 
 def model_json(model: Model) -> dict[str, Any]:
@@ -121,7 +125,7 @@ def fit_json(a: Analysis) -> dict[str, Any]:
         "source": a.source.as_dict(), "loss": a.loss, "errors": a.errors, "starts": a.starts,
         "criterion": sel.criterion, "n_samples": a.samples.n, "chosen": sel.chosen_name, "reason": sel.reason,
         "candidates": cands,
-        "model": model_json(sel.chosen.model), "warnings": list(a.warnings),
+        "model": model_json(sel.chosen.model), "warnings": list(a.warnings), "uncertainty": uncertainty_json(a),
     })  # fmt: skip
 
 

@@ -11,11 +11,17 @@ import time
 import warnings
 from collections.abc import Callable, Sequence
 
+import numpy as np
+import numpy.typing as npt
+
 from analysis.result import AnalysisError, Log
+from model.fit.angular import fit_with_angular
 from model.fit.samples import FitError, Samples
 from model.fit.select import Candidate, Selection, choose
-from model.fit.solve import FitWarning, fit
+from model.fit.solve import FitWarning
 from model.fit.spec import LAMBERT, FitSpec, blinn_phong, ggx_conductor, lambert_ggx, ward_anisotropic
+
+Array = npt.NDArray[np.float64]
 
 #: Names accepted by ``--models``, in the order ``--help`` lists them (each spec's own name works too).
 MODELS: dict[str, Callable[[], FitSpec]] = {
@@ -53,8 +59,14 @@ def fit_ladder(
     criterion: str = "bic",
     delta: float = 2.0,
     log: Log | None = None,
+    angular: dict[str, Array] | None = None,
 ) -> tuple[Selection, dict[str, float], list[str]]:
-    """Fit every candidate (timed, warnings captured) and choose as select() does: (selection, seconds, warnings)."""
+    """Fit every candidate (timed, warnings captured) and choose as select() does: (selection, seconds, warnings).
+
+    Samples with a direction covariance are fitted with effective errors (photometric plus angular,
+    :func:`model.fit.angular.fit_with_angular`); ``angular``, if given, receives each candidate's angular
+    variance per sample (N, C) in (1/sr)^2.
+    """
     cands, times, caught = [], {}, []
     for spec in ladder:
         k = len(spec.labels(samples.channels))
@@ -62,7 +74,10 @@ def fit_ladder(
         with warnings.catch_warnings(record=True) as got:
             warnings.simplefilter("always")
             try:
-                cand = Candidate(spec.name, k, fit(spec, samples, loss, None, starts=starts, seed=seed))
+                result, variance = fit_with_angular(spec, samples, loss, starts=starts, seed=seed)
+                cand = Candidate(spec.name, k, result)
+                if angular is not None:
+                    angular[spec.name] = variance
             except FitError as exc:
                 cand = Candidate(spec.name, k, None, str(exc))
         times[spec.name] = time.perf_counter() - start

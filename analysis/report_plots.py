@@ -31,6 +31,7 @@ from matplotlib.projections.polar import PolarAxes
 from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
 
 from acquisition.files.atomic import write_atomic
+from analysis.report_uncertainty import uncertainty_figure
 from analysis.result import Analysis
 from model.base import BRDF
 from model.geometry import degrees_to_vector, to_half_diff, vector_to_spherical
@@ -362,6 +363,12 @@ def _plot_coverage(a: Analysis, ang: Angles, cov: Coverage, out: Path) -> Figure
     return FigureFile("coverage", png, svg, cap)
 
 
+def _plot_uncertainty(a: Analysis, out: Path) -> FigureFile:
+    fig, cap = uncertainty_figure(a)
+    png, svg = _save(fig, out, "uncertainty")
+    return FigureFile("uncertainty", png, svg, cap)
+
+
 def write_figures(
     a: Analysis, out: str | Path, *, y_scale: str = "auto", log: Callable[[str], None] | None = None
 ) -> Figures:
@@ -374,7 +381,8 @@ def write_figures(
     cuts, cov = slices(ang), coverage(ang)
     files = []
     for draw in (lambda: _plot_slices(a, ang, cuts, out, y_scale), lambda: _plot_polar(a, ang, cuts, out),
-                 lambda: _plot_residuals(a, ang, out), lambda: _plot_coverage(a, ang, cov, out)):  # fmt: skip
+                 lambda: _plot_residuals(a, ang, out), lambda: _plot_coverage(a, ang, cov, out),
+                 lambda: _plot_uncertainty(a, out)):  # fmt: skip
         files.append(draw())
         if log:
             log(f"wrote {files[-1].png}")

@@ -13,6 +13,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
+
 from model.base import BRDF
 from model.fit.samples import Samples
 from model.fit.select import Candidate, Selection
@@ -64,6 +67,8 @@ class Reference:
 
     label: str
     brdf: BRDF
+    #: The errors a comparison with this reference should use, (N, C) in 1/sr (None: the samples' own).
+    std_error: npt.NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,6 +86,15 @@ class Analysis:
     starts: int
     #: "total" (every error in the table) or "point" (each capture's own reading error): see Samples.from_table_rows.
     errors: str = "total"
+    #: The chosen model's angular variance per sample (N, C) in (1/sr)^2 (model.fit.angular); None when the
+    #: samples carry no direction covariance.
+    angular_variance: npt.NDArray[np.float64] | None = None
+
+    def effective_std_error(self) -> npt.NDArray[np.float64]:
+        """Each sample's error with its angular share (N, C) in 1/sr: what the chosen fit weighted by."""
+        if self.angular_variance is None:
+            return np.asarray(self.samples.std_error, dtype=np.float64)
+        return np.sqrt(np.square(self.samples.std_error) + self.angular_variance)
 
     @property
     def chosen(self) -> Candidate:

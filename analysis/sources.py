@@ -70,7 +70,9 @@ def load_run(path: Path, log: Log, errors: str = "total") -> tuple[SourceSummary
     if rig.file.link.kind == "simulated":
         material = _describe_material(rig.file.simulation.material)
         try:
-            refs.append(Reference("simulated material (truth)", material_from(rig)))
+            # The simulated tile's albedo is exactly as stated: against the truth, its error is not an error.
+            exact = Samples.from_table_rows(rows, source=str(path), errors="readings").std_error
+            refs.append(Reference("simulated material (truth)", material_from(rig), exact))
         except ValueError as exc:
             warnings.warn(f"{path}: the simulated material cannot be built: {exc}", stacklevel=2)
     summary = SourceSummary(

@@ -1,4 +1,9 @@
-"""``gonio calibrate``: calibrations of the instrument, one subcommand each (``camera`` here).
+"""``gonio calibrate``: calibrations of the instrument, one subcommand each (``camera``, ``geometry``).
+
+``gonio calibrate geometry`` mounts a glossy ChArUco board on the stage (the simulated rig renders one; a
+real rig asks the operator), captures HDR whole frames at planned poses, and fits the joint zeros, the
+sample's tilt and its offset (``rig.alignment``); it writes ``geometry_calibration.json`` (and a figure of
+the captures' residuals) into ``--out``. A rig file uses it with ``[geometry] calibration``.
 
 ``gonio calibrate camera`` shows the camera a uniform light (the simulated rig's flat source, or on a real
 rig an integrating sphere the operator is asked to place), takes a photon-transfer series and a flat-field
@@ -13,7 +18,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from gonio.cli_run import EXIT_BAD_INPUT, EXIT_CAMERA, EXIT_OK, _rig
+from gonio.cli_run import EXIT_BAD_INPUT, EXIT_CAMERA, EXIT_HARDWARE, EXIT_OK, _rig
 
 
 def _camera(args: argparse.Namespace) -> int:
@@ -57,9 +62,45 @@ def _camera(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _geometry(args: argparse.Namespace) -> int:
+    from acquisition.board import BoardError, ChArUcoBoard
+    from rig.alignment.fit import CalibrationError
+    from rig.alignment.poses import PoseError
+    from rig.alignment.procedure import calibrate_geometry
+    from rig.instrument.links.base import LinkError
+
+    rig = _rig(args.rig)
+    say = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    try:
+        board = ChArUcoBoard(squares=args.squares, square_mm=args.square_mm, marker_mm=args.marker_mm)
+        path = calibrate_geometry(rig, args.out, captures=args.captures, alpha=args.alpha, board=board, log=say)
+    except (CalibrationError, PoseError, BoardError) as exc:
+        print(f"gonio: geometry calibration failed: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except LinkError as exc:
+        print(f"gonio: hardware fault: {exc}", file=sys.stderr)
+        return EXIT_HARDWARE
+    doc = __import__("json").loads(path.read_text())
+    for name in ("light_zero_deg", "camera_zero_deg", "tilt_zero_deg", "roll_zero_deg", "yaw_zero_deg",
+                 "sample_tilt_deg", "sample_tilt_azimuth_deg"):  # fmt: skip
+        if name in doc:
+            print(f"{name:>24} = {doc[name]['value']:+.4f} ± {doc[name]['std_error']:.4f}")
+    off = doc["sample_offset_mm"]
+    print(f"{'sample_offset_mm':>24} = [{', '.join(f'{v:+.3f}' for v in off['value'])}] ± "
+          f"[{', '.join(f'{v:.3f}' for v in off['std_error'])}]")  # fmt: skip
+    res = doc["residuals"]
+    print(f"residuals: corners {res['corners_rms_px']:.3f} px RMS, highlights "
+          f"{res['highlights_rms_px'] if res['highlights_rms_px'] is not None else float('nan'):.3f} px RMS, "
+          f"chi2/dof {res['reduced_chi2']:.2f}")  # fmt: skip
+    for warning in doc["warnings"]:
+        print(f"warning: {warning}", file=sys.stderr)
+    print(f"wrote {path}")
+    return EXIT_OK
+
+
 def add_calibrate_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``gonio calibrate`` and its subcommands."""
-    cal = sub.add_parser("calibrate", help="calibrate the instrument (camera: photon transfer and flat field)",
+    cal = sub.add_parser("calibrate", help="calibrate the instrument (camera: photon transfer; geometry: alignment)",
                          description="Calibrations of the instrument, one subcommand each.")  # fmt: skip
     group = cal.add_subparsers(dest="calibration", required=True, metavar="WHAT")
     camera = group.add_parser(
@@ -79,3 +120,23 @@ def add_calibrate_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser
                         help="frames of the flat-field series; 0 for none (default 16)")  # fmt: skip
     camera.add_argument("--quiet", action="store_true", help="no progress messages")
     camera.set_defaults(func=_camera)
+    geometry = group.add_parser(
+        "geometry", help="joint zeros, sample tilt and offset from a ChArUco board: geometry_calibration.json",
+        description="Mounts a glossy ChArUco board on the stage (on a real rig the operator is asked to), captures "
+        "HDR whole frames at planned poses (a round seeing the board from many directions, then mirror poses that "
+        "show the lamp's highlight in the board's coat), and fits the joints' zero offsets, the sample's tilt on "
+        "the stage and its offset from the arms' axis by least squares, with standard errors and correlations. "
+        "Writes geometry_calibration.json; a rig file applies it with [geometry] calibration = \"...\".",
+        epilog="Example: gonio calibrate geometry --rig examples/rig_simulated.toml --out calib/",
+    )  # fmt: skip
+    geometry.add_argument("--rig", help="rig file (TOML); default: the built-in simulated rig")
+    geometry.add_argument("--out", default=".", help="folder for geometry_calibration.json (default: .)")
+    geometry.add_argument("--captures", type=int, default=24,
+                          help="captures: half see the board, half the lamp's mirror (default 24)")  # fmt: skip
+    geometry.add_argument("--alpha", type=float, default=0.01,
+                          help="GGX roughness of the board's clear coat (default 0.01, a near-mirror)")  # fmt: skip
+    geometry.add_argument("--squares", type=int, default=7, help="board squares per side (default 7)")
+    geometry.add_argument("--square-mm", type=float, default=6.0, help="board square size in mm (default 6)")
+    geometry.add_argument("--marker-mm", type=float, default=4.5, help="ArUco marker size in mm (default 4.5)")
+    geometry.add_argument("--quiet", action="store_true", help="no progress messages")
+    geometry.set_defaults(func=_geometry)

@@ -70,6 +70,8 @@ def _run(args: argparse.Namespace) -> int:
     rig, sweep = _rig(args.rig), load_sweep(args.sweep)
     out = Path(args.out) if args.out else _default_out(args.sweep)
     print(f"run directory: {out}", file=sys.stderr)
+    for warning in rig.calibration_warnings():
+        print(f"warning: {warning}", file=sys.stderr)
     try:
         with _sigterm_as_interrupt():
             _report(start_run(rig, sweep, out, progress=not args.quiet))
@@ -96,6 +98,9 @@ def _plan(args: argparse.Namespace) -> int:
     rig, sweep = _rig(args.rig), load_sweep(args.sweep)
     plan = make_plan(rig, sweep)
     print(f"rig: {rig.file.name} ({rig.path}); sweep: {sweep.file.name} ({sweep.path})")
+    print(rig.calibration.describe() if rig.calibration else "geometry calibration: none (the rig as drawn)")
+    for warning in rig.calibration_warnings():
+        print(f"warning: {warning}", file=sys.stderr)
     if sweep.discarded:
         print(f"{sweep.discarded} half/difference combinations leave the hemisphere and are not measurable")
     print(plan.summary())

@@ -33,7 +33,7 @@ def open_simulated(rig: RigConfig, start: StartPose | None = None) -> Iterator[I
         link = sim.open_link(options=dynamixel_options(rig))
         assert sim.camera is not None
         target = sim.reference if rig.file.reference.kind == "simulated" else None
-        yield Instruments(link, sim.camera, sim.clock, target, sim.flat_source)
+        yield Instruments(link, sim.camera, sim.clock, target, sim.flat_source, board=sim.board)
 
 
 @contextlib.contextmanager
@@ -45,7 +45,7 @@ def open_simulated_grbl(rig: RigConfig, start: StartPose | None = None) -> Itera
     with SimulatedGrblRig(spec_from(rig), start=start) as sim:
         assert sim.camera is not None
         target = sim.reference if rig.file.reference.kind == "simulated" else None
-        yield Instruments(sim.open_link(), sim.camera, sim.clock, target, sim.flat_source)
+        yield Instruments(sim.open_link(), sim.camera, sim.clock, target, sim.flat_source, board=sim.board)
 
 
 def _open(rig: RigConfig, start: StartPose | None = None) -> contextlib.AbstractContextManager[Instruments]:

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 
 from acquisition.noise import SensorNoise
+from rig.instrument.alignment import Alignment
 from rig.run.config import ConfigError, RigConfig, material_from
+from rig.run.config_schema import Misalignment
 from simulator.camera.pixels import PixelResponse
 from simulator.grbl_rig import SimulatedGrblRig
 from simulator.render.spec import CameraSpec, LightSpec
@@ -19,6 +22,7 @@ def spec_from(rig: RigConfig) -> SimRigSpec:
         raise ConfigError(f"{rig.path}: link.kind = {f.link.kind!r}: the simulated rig needs 'simulated'")
     cam = f.camera
     sim = f.simulation
+    mis = sim.misalignment
     # The sensor as it is ([simulation.sensor]), each key it leaves out as the controller assumes ([camera.noise]).
     truth = {k: v for k, v in sim.sensor.model_dump().items()
              if k in SensorNoise.__dataclass_fields__ and v is not None}  # fmt: skip
@@ -29,10 +33,15 @@ def spec_from(rig: RigConfig) -> SimRigSpec:
     response = PixelResponse(vignetting=sim.sensor.vignetting, prnu_rms=sim.sensor.prnu_rms,
                              nonlinearity=sim.sensor.nonlinearity, seed=sim.seed)  # fmt: skip
     albedo = f.reference.albedo
+    try:
+        light = LightSpec(kind=sim.light_kind, intensity=sim.light_intensity_w_sr, size_m=mis.light_size_mm * 1e-3,
+                          falloff=mis.beam_falloff)  # fmt: skip
+    except ValueError as exc:
+        raise ConfigError(f"{rig.path}: simulation.misalignment: {exc}") from None
     return SimRigSpec(
         geometry=rig.geometry,
         material=material_from(rig),
-        light=LightSpec(kind=sim.light_kind, intensity=sim.light_intensity_w_sr),
+        light=light,
         camera=CameraSpec(resolution=cam.resolution, roi=cam.roi, spp=cam.spp, variant=cam.variant),
         noise=noise,
         axes=rig.axes,
@@ -41,9 +50,18 @@ def spec_from(rig: RigConfig) -> SimRigSpec:
         time_scale=sim.time_scale,
         seed=sim.seed,
         reference_albedo=albedo if isinstance(albedo, float) else (albedo[0], albedo[1], albedo[2]),
+        misalignment=alignment_from(mis),
+        stray_light_counts_s=mis.stray_light,
+        lamp_drift=mis.lamp_drift,
+        lamp_warmup_s=mis.lamp_warmup_s,
         camera_output=sim.camera_output,
         response=response,
     )
+
+
+def alignment_from(table: Misalignment) -> Alignment:
+    """The geometric part of ``[simulation.misalignment]`` as an Alignment (the simulated rig's truth)."""
+    return Alignment(**table.model_dump(include={f.name for f in dataclasses.fields(Alignment)}))
 
 
 def rig_from(

@@ -13,24 +13,27 @@ faster than real time, for external clients. Only one simulated rig runs per pro
 
 from __future__ import annotations
 
+import math
 import tempfile
 import threading
-from collections.abc import Mapping
+from collections.abc import Hashable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
 
+from acquisition.board import ChArUcoBoard
 from acquisition.noise import SensorNoise
 from model.base import Model
 from model.lambert import Lambert
 from model.mitsuba.materials import MitsubaMaterial, to_mitsuba
+from rig.instrument.alignment import Alignment, aligned_pose
 from rig.instrument.axis import Axis
 from rig.instrument.clock import Clock, ManualClock, ScaledClock
 from rig.instrument.geometry import RigGeometry
-from rig.instrument.kinematics import Joints, RigPose, world_pose
+from rig.instrument.kinematics import Joints, world_pose
 from rig.instrument.links.dynamixel import DynamixelLink, DynamixelOptions
 from rig.run.config import default_axes
 from simulator.camera.pixels import PixelResponse
@@ -78,6 +81,14 @@ class SimRigSpec:
         Albedo of the Lambertian reference tile that ``rig.run.reference`` swaps in for the sample.
     light_drift_per_s:
         Relative change of the light's intensity per second of rig time (0: a stable lamp), for drift tests.
+    misalignment:
+        The rig as it is built (joint zeros, the sample's wedge and offset): frames are rendered from the
+        true pose (``rig.instrument.alignment.aligned_pose``), while the ROI is the one the controller
+        would pick for the drawn pose. The controller is not told (it finds them by calibration).
+    stray_light_counts_s:
+        Ambient light reaching every pixel, in counts per second at gain 1 (not in dark frames).
+    lamp_drift, lamp_warmup_s:
+        A warming lamp: intensity times 1 + lamp_drift (1 - exp(-t / lamp_warmup_s)) at rig time t (s).
     camera_output:
         "linear" (demosaiced counts), "raw" (a CFA mosaic) or "dng" (a mosaic written as a DNG file and read
         back through rawpy, the path a real camera's RAW files take); see ``simulator.camera.simulated``.
@@ -100,6 +111,10 @@ class SimRigSpec:
     seed: int = 0
     reference_albedo: float | tuple[float, float, float] = 0.99
     light_drift_per_s: float = 0.0
+    misalignment: Alignment = field(default_factory=Alignment)
+    stray_light_counts_s: float = 0.0
+    lamp_drift: float = 0.0
+    lamp_warmup_s: float = 600.0
     camera_output: Literal["linear", "raw", "dng"] = "linear"
     response: PixelResponse = field(default_factory=PixelResponse)
     dng_dir: Path | None = None
@@ -131,9 +146,10 @@ class SimulatedRig:
         self.camera: SimulatedCamera | None = None
         self.renders = 0
         self.reference = SimulatedReference(self)
-        self._showing: Model = self.spec.material
+        self.board = SimulatedBoard(self)
+        self._showing: Hashable = self.spec.material
         self._reading: int | None = None
-        self._shown: MitsubaMaterial = self.material
+        self._shown: MitsubaMaterial | dict[str, Any] = self.material
         self._reference_material = to_mitsuba(Lambert(self.spec.reference_albedo))
         self.flat_source = SimulatedFlatSource(self.spec.camera.resolution, self.spec.noise, self.spec.optics)
         self._dng_tmp: tempfile.TemporaryDirectory[str] | None = None
@@ -154,6 +170,7 @@ class SimulatedRig:
             self.camera = SimulatedCamera(
                 self._patch, noise=self.spec.noise, optics=self.spec.optics, clock=self.clock,
                 seed=self.spec.seed, fixed_pattern_dn=self.spec.fixed_pattern_dn, state_key=self._state_key,
+                stray_counts_per_s=self.spec.stray_light_counts_s,
                 camera_id=f"gonio simulated camera ({self.spec.material.__class__.__name__}, {self.material.plugin})",
                 kind="linear" if self.spec.camera_output == "linear" else "raw", response=self.spec.response,
                 dng_dir=dng_dir if self.spec.camera_output == "dng" else None, keep_dng=self.spec.dng_dir is not None,
@@ -231,6 +248,11 @@ class SimulatedRig:
         else:
             self._showing, self._shown = self.spec.material, self.material
 
+    def show_material(self, key: Hashable, material: dict[str, Any]) -> None:
+        """Put any Mitsuba material in view in place of the sample (``key`` names it for caches and noise)."""
+        self._reading = None
+        self._showing, self._shown = key, material
+
     def _state_key(self) -> tuple[object, ...]:
         ticks = tuple(round(self.physical_units(a), 3) for a in self.axes)
         key: tuple[object, ...] = (ticks, repr(self._showing))
@@ -242,25 +264,82 @@ class SimulatedRig:
         """Radiance (W/(m^2 sr)) the camera sees now (the ROI, or the whole frame), from the servos' physical pose."""
         return self._radiance(full_frame)
 
-    def _patch(self) -> SensorPatch:
+    def lamp_factor(self) -> float:
+        """The lamp's intensity now relative to its cold intensity (drift and warm-up at rig time)."""
+        t = self.clock.now()
+        warm = self.spec.lamp_drift * -math.expm1(-t / self.spec.lamp_warmup_s) if self.spec.lamp_drift else 0.0
+        return (1.0 + self.spec.light_drift_per_s * t) * (1.0 + warm)
+
+    def _patch(self, full_frame: bool = False) -> SensorPatch:
         """What the camera sees: the flat-field source while one is in use, else the rendered ROI's window."""
         if self.flat_source.state != "off":
             return self.flat_source.patch()
-        pose = world_pose(self.spec.geometry, self.joints_now())
-        return roi_patch(lambda box: self._radiance(crop=box, pose=pose), self.renderer.roi(pose),
-                         self.spec.camera.resolution, self.spec.camera_output == "dng")  # fmt: skip
+        if full_frame:
+            return SensorPatch(self._radiance(full_frame=True))
+        # The controller picks its ROI for the rig as drawn; the scene rendered is what the rig really is.
+        box = self.renderer.roi(world_pose(self.spec.geometry, self.joints_now()))
+        return roi_patch(lambda crop: self._radiance(crop=crop), box, self.spec.camera.resolution,
+                         self.spec.camera_output == "dng")  # fmt: skip
 
     def _radiance(
-        self, full_frame: bool = False, crop: tuple[int, int, int, int] | None = None, pose: RigPose | None = None
+        self, full_frame: bool = False, crop: tuple[int, int, int, int] | None = None
     ) -> npt.NDArray[np.float64]:
-        pose = pose if pose is not None else world_pose(self.spec.geometry, self.joints_now())
+        joints = self.joints_now()
+        true = aligned_pose(self.spec.geometry, joints, self.spec.misalignment)
         if crop is None and not full_frame:
-            crop = self.renderer.roi(pose)
+            crop = self.renderer.roi(world_pose(self.spec.geometry, joints))
         self.renders += 1
-        image = self.renderer.render(pose, self._shown, crop=crop, key=repr(self._showing))
-        if self.spec.light_drift_per_s:
-            return np.asarray(image, dtype=np.float64) * (1.0 + self.spec.light_drift_per_s * self.clock.now())
-        return np.asarray(image, dtype=np.float64)
+        # The render's own sampling noise is part of each rig's noise: seeded like the sensor's.
+        image = self.renderer.render(true, self._shown, crop=crop, key=repr(self._showing), seed=self.spec.seed)
+        factor = self.lamp_factor()
+        return np.asarray(image, dtype=np.float64) * factor if factor != 1.0 else np.asarray(image, dtype=np.float64)
+
+
+class SimulatedBoard:
+    """The simulated rig's calibration board: a ChArUco pattern under a glossy coat; satisfies BoardTarget."""
+
+    def __init__(self, rig: SimulatedRig) -> None:
+        self._rig = rig
+        self._dir: tempfile.TemporaryDirectory[str] | None = None
+
+    @property
+    def description(self) -> str:
+        """The board's material."""
+        return "simulated ChArUco board under a GGX-rough clear coat (roughplastic)"
+
+    def present_board(self, board: ChArUcoBoard, alpha: float) -> None:
+        """Swap the board in for the sample (textured diffuse print under a coat of GGX ``alpha``, ior 1.5)."""
+        if self._dir is None:
+            self._dir = tempfile.TemporaryDirectory(prefix="gonio-board-")
+        path = Path(self._dir.name) / f"board-{abs(hash((board, alpha)))}.png"
+        if not path.exists():
+            _write_board_texture(path, board, self._rig.spec.geometry)
+        material = {
+            "type": "roughplastic", "distribution": "ggx", "alpha": float(alpha), "int_ior": 1.5,
+            "diffuse_reflectance": {"type": "bitmap", "filename": str(path), "raw": True, "filter_type": "bilinear"},
+        }  # fmt: skip
+        self._rig.show_material(("board", board, alpha), material)
+
+    def withdraw_board(self) -> None:
+        """Put the sample back."""
+        self._rig.show(False)
+
+
+def _write_board_texture(path: Path, board: ChArUcoBoard, geometry: RigGeometry, px_per_mm: float = 20.0) -> None:
+    """The sample's face as a texture: the board centred on it, white around, printed black at 4 % reflectance."""
+    import cv2
+
+    printed = board.image(px_per_mm)
+    w, h = round(geometry.sample_width_m * 1e3 * px_per_mm), round(geometry.sample_height_m * 1e3 * px_per_mm)
+    if printed.shape[0] > min(w, h):
+        raise SimulatedRigError(f"the {board.width_mm:g} mm board does not fit the {geometry.sample_width_m * 1e3:g} x "
+                                f"{geometry.sample_height_m * 1e3:g} mm sample")  # fmt: skip
+    face = np.full((h, w), 255, dtype=np.uint8)
+    y0, x0 = (h - printed.shape[0]) // 2, (w - printed.shape[1]) // 2
+    face[y0 : y0 + printed.shape[0], x0 : x0 + printed.shape[1]] = printed
+    # Mitsuba's rectangle maps texture rows to its local +y: flipped, the print reads upright from the front.
+    ink = (10 + face.astype(np.float64)[::-1] * (217 - 10) / 255).astype(np.uint8)
+    cv2.imwrite(str(path), ink)
 
 
 class SimulatedReference:

@@ -32,8 +32,8 @@ def test_the_project_keeps_its_layers_and_has_no_circles() -> None:
     assert "0 broken" in result.stdout
 
 
-SKELETON = ("gonio", "analysis", "simulator", "simulator/sub", "rig", "rig/run", "rig/instrument", "acquisition",
-            "model")  # fmt: skip
+SKELETON = ("gonio", "analysis", "simulator", "simulator/sub", "rig", "rig/alignment", "rig/run", "rig/instrument",
+            "acquisition", "model")  # fmt: skip
 
 
 def _tree(tmp: Path, files: dict[str, str]) -> Path:
@@ -68,6 +68,7 @@ def test_a_clean_tree_passes(tmp_path: Path) -> None:
         ({"analysis/m.py": "import simulator.m\n"}, "analysis is not allowed to import simulator"),
         ({"simulator/m.py": "import gonio.m\n"}, "simulator is not allowed to import gonio"),
         ({"rig/instrument/m.py": "import rig.run.m\n"}, "rig.instrument is not allowed to import rig.run"),
+        ({"rig/run/m.py": "import rig.alignment.m\n"}, "rig.run is not allowed to import rig.alignment"),
         ({"model/a.py": "import model.b\n", "model/b.py": "import model.a\n"}, "No cycles are allowed in model"),
         ({"simulator/sub/a.py": "from simulator.sub import b\n", "simulator/sub/b.py": "import simulator.sub.a\n"},
          "No cycles are allowed in simulator.sub"),

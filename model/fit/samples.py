@@ -9,6 +9,7 @@ a value, directions below the horizon) drop the rows and leave a note that the f
 from __future__ import annotations
 
 import csv
+import json
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -41,12 +42,30 @@ def _flag(v: Any) -> bool:
     return bool(v)
 
 
+def _direction_cov(rows: Sequence[Mapping[str, Any]], source: str) -> Array | None:
+    """The rows' ``direction_cov`` (a JSON 4 x 4 each, see rig/run/table.py), None unless every row has one."""
+    cells = [r.get("direction_cov") for r in rows]
+    if any(c is None or (isinstance(c, str) and not c.strip()) for c in cells):
+        return None
+    try:
+        out = np.array([json.loads(c) if isinstance(c, str) else c for c in cells], dtype=np.float64)
+    except (ValueError, TypeError) as exc:
+        raise FitError(f"{source or 'table'}: direction_cov is not a 4 x 4 matrix of numbers in every row: "
+                       f"{exc}") from None  # fmt: skip
+    if out.shape != (len(rows), 4, 4):
+        raise FitError(f"{source or 'table'}: direction_cov: expected a 4 x 4 matrix per row, got shape "
+                       f"{out.shape[1:]}")  # fmt: skip
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class Samples:
     """N BRDF samples: wi, wo (N, 3) unit vectors in the local frame; value, std_error (N, C) in 1/sr.
 
     ``lower_bound`` (N,) marks saturated readings, whose value is only a lower bound; the fit leaves them
     out. ``std_error_assumed`` says the errors are an assumption (MERL files carry none), not measured.
+    ``direction_cov`` (N, 4, 4), when measured, is the covariance of each pair's directions (tangent
+    components wi_x, wi_y, wo_x, wo_y; see :mod:`model.fit.angular`); empty (0, 4, 4) when unknown.
     Every sample that is not a lower bound must have a finite value and a positive, finite std_error.
     """
 
@@ -58,6 +77,7 @@ class Samples:
     std_error_assumed: bool = False
     notes: tuple[str, ...] = ()
     source: str = ""
+    direction_cov: Array = field(default_factory=lambda: np.zeros((0, 4, 4)))
 
     def __post_init__(self) -> None:
         wi = np.asarray(self.wi, dtype=np.float64)
@@ -90,7 +110,15 @@ class Samples:
                 f"sample {i}: std_error {se[i, c]!r} in channel {c} must be positive and finite "
                 f"({int(bad_se.any(axis=1).sum())} samples affected); zero-variance samples would get infinite weight"
             )
-        for name, arr in (("wi", wi), ("wo", wo), ("value", value), ("std_error", se), ("lower_bound", lower)):
+        cov = np.asarray(self.direction_cov, dtype=np.float64)
+        if cov.size and cov.shape != (n, 4, 4):
+            raise FitError(f"direction_cov must have shape ({n}, 4, 4) or be empty; got {cov.shape}")
+        if cov.size and not np.all(np.isfinite(cov)):
+            i = int(np.argwhere(~np.isfinite(cov))[0][0])
+            raise FitError(f"sample {i}: direction_cov is not finite")
+        cov = cov if cov.size else np.zeros((0, 4, 4))
+        for name, arr in (("wi", wi), ("wo", wo), ("value", value), ("std_error", se), ("lower_bound", lower),
+                          ("direction_cov", cov)):  # fmt: skip
             object.__setattr__(self, name, arr)
 
     @property
@@ -110,6 +138,7 @@ class Samples:
         return Samples(
             self.wi[m], self.wo[m], self.value[m], self.std_error[m], self.lower_bound[m],
             self.std_error_assumed, notes, self.source,
+            self.direction_cov[m] if self.direction_cov.size else np.zeros((0, 4, 4)),
         )  # fmt: skip
 
     @classmethod
@@ -125,6 +154,7 @@ class Samples:
         *,
         includes_cosine: bool | npt.ArrayLike = False,
         source: str = "",
+        direction_cov: npt.ArrayLike | None = None,
     ) -> Samples:
         """Samples from angles in degrees, values in 1/sr; rows below the horizon are dropped with a note."""
         wi = degrees_to_vector(theta_i_deg, phi_i_deg).reshape(-1, 3)
@@ -146,7 +176,9 @@ class Samples:
         if (missing & ~below).any():
             notes.append(f"{int((missing & ~below).sum())} samples without a BRDF value (no calibration) dropped")
         keep = ~below & ~missing
-        return cls(wi[keep], wo[keep], v[keep], se[keep], lower[keep], False, tuple(notes), source)
+        cov = None if direction_cov is None else np.asarray(direction_cov, dtype=np.float64).reshape(n, 4, 4)[keep]
+        return cls(wi[keep], wo[keep], v[keep], se[keep], lower[keep], False, tuple(notes), source,
+                   np.zeros((0, 4, 4)) if cov is None else cov)  # fmt: skip
 
     @classmethod
     def from_table_rows(
@@ -155,15 +187,17 @@ class Samples:
         """Samples from a run table's rows (rig/run/table.py columns, degrees; strings as read from CSV accepted).
 
         ``errors``: "total" takes ``brdf_se_*`` (the point's reading, the references' and the tile albedo's
-        errors); "point" takes the point's own reading error only (``reading_se / reading`` times the BRDF).
+        errors); "point" takes the point's own reading error only (``reading_se / reading`` times the BRDF);
+        "readings" takes ``brdf_se_readings_*`` (the point's and the references' readings, not the albedo:
+        what a simulated run, whose tile's albedo is exact, is judged by against its truth).
         The calibration's share is common to every point between two references (the albedo's to the whole
         run): it moves all values together, so it says nothing about a lobe's shape, and counted per point
         it drowns the difference between a capture at SNR 300 and one at SNR 100 and pushes chi2/dof far
         below 1. Fit with "point" to weight captures by what they measured; the scale is then uncertain by
         the calibration's error on top of the fit's.
         """
-        if errors not in ("total", "point"):
-            raise FitError(f"{source or 'table'}: errors = {errors!r}: expected 'total' or 'point'")
+        if errors not in ("total", "point", "readings"):
+            raise FitError(f"{source or 'table'}: errors = {errors!r}: expected 'total', 'point' or 'readings'")
         if not rows:
             raise FitError(f"{source or 'table'}: no rows to fit")
         chans = [c for c in CHANNELS if f"brdf_{c}" in rows[0]]
@@ -172,7 +206,11 @@ class Samples:
         cols = {k: np.array([_num(r.get(k)) for r in rows]) for k in
                 ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg")}  # fmt: skip
         value = np.stack([[_num(r.get(f"brdf_{c}")) for r in rows] for c in chans], axis=-1)
-        se = np.stack([[_num(r.get(f"brdf_se_{c}")) for r in rows] for c in chans], axis=-1)
+        column = "brdf_se_readings" if errors == "readings" else "brdf_se"
+        if errors == "readings" and (missing := [f"{column}_{c}" for c in chans if f"{column}_{c}" not in rows[0]]):
+            raise FitError(f"{source or 'table'}: errors = 'readings' needs the columns {missing} (tables written "
+                           "before they were added have only brdf_se_*: use errors='total')")  # fmt: skip
+        se = np.stack([[_num(r.get(f"{column}_{c}")) for r in rows] for c in chans], axis=-1)
         if errors == "point":
             missing = [k for c in chans for k in (f"reading_{c}", f"reading_se_{c}") if k not in rows[0]]
             if missing:
@@ -187,7 +225,7 @@ class Samples:
         with_cos = np.array([_flag(r.get("includes_cosine", False)) for r in rows])
         return cls.from_arrays(
             cols["theta_i_deg"], cols["phi_i_deg"], cols["theta_o_deg"], cols["phi_o_deg"], value, se, lower,
-            includes_cosine=with_cos, source=source,
+            includes_cosine=with_cos, source=source, direction_cov=_direction_cov(rows, source),
         )  # fmt: skip
 
     @classmethod

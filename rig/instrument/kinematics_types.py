@@ -78,8 +78,10 @@ class Directions:
 class RigPose:
     """World placement (metres, unit vectors) of the sample, light and camera for one set of joints.
 
-    The sample centre is the world origin; tangent, bitangent and normal are the world images of the
-    sample's local x, y and z axes. Arrays have shape (..., 3).
+    The sample centre is the world origin on the drawn rig; tangent, bitangent and normal are the world
+    images of the sample's local x, y and z axes. Arrays have shape (..., 3). ``aim_m`` is the point the
+    camera and the light are aimed at (the arms' axis, the origin); None means the sample centre, which is
+    the same point on the drawn rig (``rig.instrument.alignment`` moves the sample off it).
     """
 
     sample_centre_m: FloatArray
@@ -88,6 +90,11 @@ class RigPose:
     sample_bitangent: FloatArray
     light_position_m: FloatArray
     camera_position_m: FloatArray
+    aim_m: FloatArray | None = None
+
+    def aim(self) -> FloatArray:
+        """Where the camera and the light point (m): ``aim_m``, or the sample centre."""
+        return np.asarray(self.sample_centre_m if self.aim_m is None else self.aim_m, dtype=np.float64)
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from rig.instrument.links.base import MotionLink
 from rig.run import registry
 from rig.run.config import RigConfig
 from rig.run.flat_source import FlatSource
-from rig.run.reference import ReferenceTarget
+from rig.run.reference import BoardTarget, ReferenceTarget
 
 #: Joint angles in degrees a simulated rig starts at (a resumed run's last pose), by joint name.
 StartPose = Mapping[str, float]
@@ -47,6 +47,8 @@ class Instruments:
     target: ReferenceTarget | None
     #: What ``gonio calibrate camera`` shows the camera (None: the backend cannot calibrate its camera).
     flat_source: FlatSource | None = None
+    #: Mounts the calibration board for ``gonio calibrate geometry`` (None: the backend cannot).
+    board: BoardTarget | None = None
 
 
 class OpenInstruments(Protocol):

@@ -6,6 +6,7 @@ what was expected; unknown keys are errors. The schema, with units and defaults,
 
 from __future__ import annotations
 
+import datetime
 import re
 import tomllib
 import typing
@@ -20,7 +21,14 @@ from pydantic import BaseModel, ValidationError
 
 import model
 from model.base import Model
+from rig.instrument.alignment import Alignment
 from rig.instrument.axis import Axis
+from rig.instrument.calibration_file import (
+    RESIDUAL_LIMIT,
+    CalibrationFileError,
+    GeometryCalibration,
+    read_geometry_calibration,
+)
 from rig.instrument.geometry import GeometryError, JointLimits, RigGeometry
 from rig.instrument.links.dynamixel_table import X_SERIES
 from rig.run import registry
@@ -188,6 +196,32 @@ class RigConfig:
     file: RigFile
     geometry: RigGeometry
     axes: tuple[Axis, ...]
+    #: The geometry calibration in force (``[geometry] calibration``), None for the rig as drawn.
+    calibration: GeometryCalibration | None = None
+
+    @property
+    def alignment(self) -> Alignment:
+        """The rig's known imperfections: the calibration's, or none."""
+        return self.calibration.alignment if self.calibration is not None else Alignment()
+
+    def calibration_warnings(self) -> list[str]:
+        """What is doubtful about the calibration in force: older than the rig file, residuals beyond noise."""
+        cal = self.calibration
+        if cal is None:
+            return []
+        out = [f"the geometry calibration says: {w}" for w in cal.warnings]
+        if cal.created_utc and self.path.is_file():
+            made = datetime.datetime.fromisoformat(cal.created_utc)
+            changed = datetime.datetime.fromtimestamp(self.path.stat().st_mtime, datetime.UTC)
+            if changed > made:
+                out.append(f"{self.path} changed ({changed:%Y-%m-%d %H:%M} UTC) after its geometry calibration "
+                           f"{cal.path} was made ({made:%Y-%m-%d %H:%M} UTC): if the rig was rebuilt or the sample "
+                           "re-seated, calibrate again (gonio calibrate geometry)")  # fmt: skip
+        if cal.reduced_chi2 is not None and cal.reduced_chi2 > RESIDUAL_LIMIT:
+            out.append(f"the geometry calibration {cal.path} left residuals {cal.reduced_chi2:.2f}x its noise "
+                       f"(chi2/dof above {RESIDUAL_LIMIT:g}): the rig's model does not explain its captures; "
+                       "check the board and calibrate again")  # fmt: skip
+        return out
 
 
 @dataclass(frozen=True)
@@ -204,7 +238,7 @@ def _geometry(path: Path, cfg: RigFile) -> RigGeometry:
     g = cfg.geometry
     try:
         limits = JointLimits(**{k: tuple(v) for k, v in g.limits.model_dump().items()})
-        values = g.model_dump(exclude={"limits"})
+        values = g.model_dump(exclude={"limits", "calibration"})
         return RigGeometry(**values, limits=limits)
     except GeometryError as exc:
         raise ConfigError(f"{path}: [geometry] {exc}") from None
@@ -273,8 +307,14 @@ def load_rig(path: str | Path) -> RigConfig:
     return rig_config(cfg, p)
 
 
-def rig_config(cfg: RigFile, path: str | Path = "<default rig>") -> RigConfig:
-    """A RigConfig from an already validated rig table (e.g. the built-in simulated rig)."""
+def rig_config(
+    cfg: RigFile, path: str | Path = "<default rig>", *, calibration: GeometryCalibration | None = None
+) -> RigConfig:
+    """A RigConfig from an already validated rig table (e.g. the built-in simulated rig).
+
+    ``calibration`` is used in place of reading ``[geometry] calibration`` (a run resumed from its
+    manifest takes the one it started with).
+    """
     p = Path(path)
     geometry = _geometry(p, cfg)
     axes = _axes(p, cfg, geometry)
@@ -293,7 +333,13 @@ def rig_config(cfg: RigFile, path: str | Path = "<default rig>") -> RigConfig:
     if cfg.reference.kind not in ("manual", "none", *traits.references):
         raise ConfigError(f"{p}: reference.kind = {cfg.reference.kind!r}: only a rig whose backend provides it has "
                           f"a {cfg.reference.kind} reference")  # fmt: skip
-    return RigConfig(p, cfg, geometry, axes)
+    if calibration is None and cfg.geometry.calibration is not None:
+        named = Path(cfg.geometry.calibration)
+        try:
+            calibration = read_geometry_calibration(named if named.is_absolute() else p.parent / named)
+        except CalibrationFileError as exc:
+            raise ConfigError(f"{p}: geometry.calibration = {cfg.geometry.calibration!r}: {exc}") from None
+    return RigConfig(p, cfg, geometry, axes, calibration)
 
 
 def _directions(path: Path, cfg: SweepFile) -> tuple[FloatArray, int]:

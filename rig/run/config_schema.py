@@ -6,7 +6,7 @@ and turns pydantic's errors into messages that name the file, the key, the value
 
 Rig file tables: ``[geometry]`` (and ``[geometry.limits]``), ``[link]``, ``[axes.<joint>]``, ``[camera]``
 (``[camera.noise]``, ``[camera.options]``), ``[reference]``, ``[simulation]`` (``[simulation.material]``,
-``[simulation.sensor]``). Sweep file tables:
+``[simulation.sensor]``, ``[simulation.misalignment]``). Sweep file tables:
 ``[sweep]`` and ``[capture]``. See examples/*.toml for annotated files.
 """
 
@@ -61,7 +61,11 @@ class Limits(Strict):
 
 
 class Geometry(Strict):
-    """``[geometry]``: the rig's layout, arm radii and sample size in metres, angles in degrees."""
+    """``[geometry]``: the rig's layout, arm radii and sample size in metres, angles in degrees.
+
+    ``calibration``: a ``geometry_calibration.json`` (``gonio calibrate geometry``; relative to the rig
+    file) whose joint zeros, sample tilt and offset the kinematics correct for.
+    """
 
     layout: Literal["four_axis", "in_plane", "fixed_camera"] = "four_axis"
     light_radius_m: Pos = 0.5
@@ -75,6 +79,7 @@ class Geometry(Strict):
     camera_azimuth_deg: Finite = 0.0
     plane_azimuth_deg: Finite = 0.0
     limits: Limits = Limits()
+    calibration: str | None = None
 
 
 def _one_of(value: str, known: tuple[str, ...]) -> str:
@@ -300,6 +305,37 @@ class Material(Strict):
         return {k: tuple(v) if isinstance(v, list) else v for k, v in extra.items()}
 
 
+ZeroOffset = Annotated[float, Field(ge=-45, le=45, allow_inf_nan=False)]
+OffsetMm = Annotated[float, Field(ge=-50, le=50, allow_inf_nan=False)]
+
+
+class Misalignment(Strict):
+    """``[simulation.misalignment]``: how the simulated rig differs from the drawn one (hidden from the controller).
+
+    Joint zeros (deg): a joint that reports angle a stands at a - zero. The sample's normal is tipped by
+    ``sample_tilt_deg`` towards the stage-frame azimuth ``sample_tilt_azimuth_deg``; its centre sits
+    ``sample_offset_mm`` (x tangent, y bitangent, z normal of the stage) off the arms' axis. The light is a
+    disk of ``light_size_mm`` diameter (0: a point) whose irradiance falls by the fraction ``beam_falloff``
+    at the edge of the lit spot; ``stray_light`` adds ambient counts per second to every pixel; the lamp
+    warms up by the fraction ``lamp_drift`` with time constant ``lamp_warmup_s`` of rig time.
+    See ``rig.instrument.alignment`` for the exact definitions.
+    """
+
+    light_zero_deg: ZeroOffset = 0.0
+    camera_zero_deg: ZeroOffset = 0.0
+    tilt_zero_deg: ZeroOffset = 0.0
+    roll_zero_deg: ZeroOffset = 0.0
+    yaw_zero_deg: ZeroOffset = 0.0
+    sample_tilt_deg: Annotated[float, Field(ge=0, le=20, allow_inf_nan=False)] = 0.0
+    sample_tilt_azimuth_deg: Finite = 0.0
+    sample_offset_mm: tuple[OffsetMm, OffsetMm, OffsetMm] = (0.0, 0.0, 0.0)
+    light_size_mm: Annotated[float, Field(ge=0, le=200, allow_inf_nan=False)] = 0.0
+    beam_falloff: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0
+    stray_light: NonNeg = 0.0
+    lamp_drift: Annotated[float, Field(gt=-0.9, lt=10, allow_inf_nan=False)] = 0.0
+    lamp_warmup_s: Pos = 600.0
+
+
 class SimulatedSensor(Strict):
     """``[simulation.sensor]``: the simulated sensor as it really is, hidden from the controller.
 
@@ -320,7 +356,7 @@ class SimulatedSensor(Strict):
 
 
 class Simulation(Strict):
-    """``[simulation]``: what the simulated rig stands in for: material, light (W/sr), time, seed, sensor.
+    """``[simulation]``: what the simulated rig stands in for: material, light, time, seed, sensor, imperfections.
 
     ``camera_output``: "linear" frames, "raw" CFA mosaics, or "dng": mosaics written as DNG files and read back
     through rawpy, the path of a real camera's RAW files.
@@ -332,6 +368,7 @@ class Simulation(Strict):
     material: Material = Material()
     camera_output: Literal["linear", "raw", "dng"] = "linear"
     sensor: SimulatedSensor = SimulatedSensor()
+    misalignment: Misalignment = Misalignment()
     light_intensity_w_sr: Pos = 1.0
     light_kind: Literal["point", "spot"] = "point"
     time_scale: Pos | None = None

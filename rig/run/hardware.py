@@ -20,7 +20,7 @@ from rig.run.backends import Instruments, RigBackend, StartPose
 from rig.run.bounded_camera import BoundedCamera
 from rig.run.config import RigConfig
 from rig.run.flat_source import ManualFlatSource
-from rig.run.reference import ManualReference, ReferenceTarget
+from rig.run.reference import ManualBoard, ManualReference, ReferenceTarget
 
 
 def dynamixel_options(rig: RigConfig) -> DynamixelOptions:
@@ -62,7 +62,7 @@ def _instruments(rig: RigConfig, link: MotionLink, clock: Clock) -> Iterator[Ins
     camera = BoundedCamera(open_camera(rig, clock), slack_s=rig.file.camera.capture_timeout_s)
     manual: ReferenceTarget | None = ManualReference() if rig.file.reference.kind == "manual" else None
     try:
-        yield Instruments(link, camera, clock, manual, ManualFlatSource())
+        yield Instruments(link, camera, clock, manual, ManualFlatSource(), board=ManualBoard())
     finally:
         camera.close()
 

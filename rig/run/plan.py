@@ -29,9 +29,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from rig.instrument.alignment import Alignment
 from rig.instrument.axis import Axis, AxisLimitError
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Branch, Joints, Reason, Solution, solve_degrees
+from rig.run.plan_alignment import calibrated_joints
 from rig.run.plan_order import FloatArray, order_path, pairwise_times, step_times
 from rig.run.plan_paths import ArmPaths, gap_of, safe_sequence
 
@@ -318,6 +320,7 @@ def plan_sweep(
     coordinated: bool = False,
     isotropic: bool = False,
     branch: Branch = "camera_cw",
+    alignment: Alignment | None = None,
 ) -> Plan:
     """Plan rows (N, 4) of BRDF angles in degrees on a rig: reachability, order, and time estimate in seconds.
 
@@ -327,7 +330,10 @@ def plan_sweep(
     the detour there and back and ``settle_s``. ``coordinated`` estimates GRBL-style straight moves.
     ``isotropic`` turns each pair about the normal so the roll joint stays at ``start``'s (in-plane rig:
     into the arm plane), so a rig without a roll axis measures it; skipped details then describe the
-    turned pair. ``branch`` picks the four-axis solution (see ``rig.instrument.kinematics``).
+    turned pair. ``branch`` picks the four-axis solution (see ``rig.instrument.kinematics``). ``alignment``
+    (a geometry calibration's) corrects each reachable point's joints so the real rig measures the wanted
+    directions (``rig.instrument.alignment.aligned_inverse``); a point it cannot reach within 0.01 deg is
+    skipped as ``calibrated_miss``.
     """
     rows = np.asarray(directions_deg, dtype=np.float64)
     if rows.ndim != 2 or rows.shape[1] != 4:
@@ -357,9 +363,12 @@ def plan_sweep(
     sol = _solve(geometry, rows, start, branch, isotropic)
     reason = np.asarray(sol.reason).reshape(len(rows)).copy()
     detail: dict[int, str] = {}
+    solved = {n: np.asarray(getattr(sol.joints, n), dtype=np.float64).reshape(len(rows)) for n in names}
+    if alignment is not None and not alignment.is_zero:
+        solved = calibrated_joints(geometry, sol, solved, reason, detail, alignment)
     placed: dict[str, FloatArray] = {}
     for name in names:
-        values = np.asarray(getattr(sol.joints, name), dtype=np.float64).reshape(len(rows))
+        values = solved[name]
         s0 = float(np.asarray(getattr(start, name)))
         placed[name], fits = _axis_check(geometry, name, values, s0, by_name.get(name))
         for i in np.flatnonzero((reason == "") & ~fits):

@@ -1,8 +1,10 @@
-"""The reference target: how the runner puts a Lambertian tile of known albedo where the sample is.
+"""Targets the rig puts where the sample is: the Lambertian reference tile, and the calibration board.
 
 A real rig either has a flip-in (or stage-mounted) reference that software can move, or an operator who
 swaps the tile by hand; the simulated rig swaps the rendered material. The runner only needs the two
 calls of ``ReferenceTarget``. ``ManualReference`` asks the operator on the terminal and waits for Enter.
+Geometry calibration (``rig.alignment``) mounts a ChArUco board the same way (``BoardTarget``,
+``ManualBoard``).
 """
 
 from __future__ import annotations
@@ -10,6 +12,8 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable
 from typing import Protocol, runtime_checkable
+
+from acquisition.board import ChArUcoBoard
 
 
 @runtime_checkable
@@ -48,5 +52,45 @@ class ManualReference:
         self._ask(f"Reference reading before point {slot}: place the reference tile on the stage, then press Enter: ")
 
     def withdraw(self) -> None:
+        """Ask the operator to put the sample back and wait for Enter."""
+        self._ask("Put the sample back on the stage, then press Enter: ")
+
+
+@runtime_checkable
+class BoardTarget(Protocol):
+    """Something that can mount the calibration board where the sample is, and take it off again."""
+
+    @property
+    def description(self) -> str:
+        """What the board is mounted on (for the calibration file)."""
+        ...
+
+    def present_board(self, board: ChArUcoBoard, alpha: float) -> None:
+        """Mount ``board`` (its coat's roughness ``alpha``, GGX) where the sample is; returns once in place."""
+        ...
+
+    def withdraw_board(self) -> None:
+        """Put the sample back; returns once it is in place."""
+        ...
+
+
+class ManualBoard:
+    """An operator mounts the board by hand, prompted on the terminal (``ask`` is ``input`` by default)."""
+
+    def __init__(self, ask: Callable[[str], str] | None = None) -> None:
+        self._ask = ask or input
+
+    @property
+    def description(self) -> str:
+        """What the board is."""
+        return "ChArUco board mounted by hand"
+
+    def present_board(self, board: ChArUcoBoard, alpha: float) -> None:
+        """Ask the operator to mount the printed board and wait for Enter."""
+        print("\a", end="", file=sys.stderr)
+        self._ask(f"Mount the ChArUco board ({board.squares} x {board.squares} squares of {board.square_mm:g} mm, "
+                  f"{board.dictionary}) centred on the stage, pattern upright, then press Enter: ")  # fmt: skip
+
+    def withdraw_board(self) -> None:
         """Ask the operator to put the sample back and wait for Enter."""
         self._ask("Put the sample back on the stage, then press Enter: ")

@@ -6,6 +6,10 @@ fixed sleep), the joint angles read back and turned into the directions actually
 before the first point, every ``reference.every`` points and after the last, with a drift check. Points
 already in the journal are skipped, so the same call resumes a killed run.
 
+Time: every record carries the rig clock (``rig_time_s``), the run time (``run_time_s``, continuous across
+resumes: see ``Runner._continue_time``), the run time at the middle of its reading (``reading_time_s``, the
+drift correction's time base in ``rig.run.table``) and UTC (``utc``, ISO 8601).
+
 Faults: a move that times out is re-issued once; a capture that fails is retried once; anything else
 from the link (a servo fault, a dead bus) or a second failure stops the run. Ctrl-C stops it too. In every
 case the axes are stopped and the link shut down by the torque policy (``torque_off`` or ``hold``), the
@@ -15,10 +19,12 @@ journal keeps everything measured, and the run's status says why it stopped.
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import math
 import sys
+import time
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -26,9 +32,13 @@ import numpy as np
 from tqdm import tqdm
 
 from acquisition.frame import Camera
+from rig.instrument.alignment import Alignment, aligned_forward
+from rig.instrument.axis import Axis
+from rig.instrument.calibration_file import GeometryCalibration
 from rig.instrument.clock import Clock
+from rig.instrument.direction_uncertainty import direction_covariances
 from rig.instrument.geometry import RigGeometry
-from rig.instrument.kinematics import Joints, forward
+from rig.instrument.kinematics import Joints
 from rig.instrument.links.base import LinkError, MotionLink, MoveTimeout
 from rig.run.bounded_camera import BoundedCamera
 from rig.run.journal import check_records
@@ -118,6 +128,8 @@ class Runner:
         reference: ReferenceSettings | None = None,
         target: ReferenceTarget | None = None,
         options: RunOptions | None = None,
+        calibration: GeometryCalibration | None = None,
+        axes: Sequence[Axis] = (),
     ) -> None:
         if reference is not None and target is None:
             raise ValueError("a reference schedule needs a ReferenceTarget to put the tile in view")
@@ -127,16 +139,51 @@ class Runner:
         self.plan, self.store, self.link, self.camera, self.clock = plan, store, link, camera, clock
         self.geometry, self.capture, self.reference, self.target = geometry, capture, reference, target
         self._measured = self._references = self._drift = 0
+        self._offset = 0.0  # run time = clock time + offset (see _continue_time)
+        #: The rig's geometry calibration: read-backs become the true directions, its covariance their error.
+        self.calibration = calibration
+        self.alignment = calibration.alignment if calibration is not None else Alignment()
+        #: Encoder resolution per joint (deg): a count's uniform error, variance count^2 / 12.
+        self._resolution = {a.name: 1.0 / a.units_per_joint_degree for a in axes}
         allowed = [p.joints for p in plan.points] + [v for p in plan.points for v in p.via]
         if reference is not None:
             allowed.append(reference.joints)
         self.guard = MotionGuard(plan.paths, allowed)
+
+    # -- run time -------------------------------------------------------------------------------------
+    def now(self) -> float:
+        """Run time in seconds: continuous across resumes, the time base of the drift correction."""
+        return self.clock.now() + self._offset
+
+    def _continue_time(self, records: list[dict[str, Any]]) -> None:
+        """Set run time so it continues where the journal stopped.
+
+        A simulated clock (one that can be advanced) is simply moved on to the last record's time: the
+        simulation did not age while the process was dead, so a resumed run sees the lamp, the noise and
+        the time stamps an uninterrupted run saw. A real clock cannot be moved: run time continues from the
+        last record plus the real time (UTC) that passed since, since a lamp drifts while nobody watches.
+        """
+        last = next((r for r in reversed(records) if r.get("kind") in ("point", "reference")), None)
+        now = self.clock.now()
+        if last is None:
+            self._offset = 0.0 if hasattr(self.clock, "advance") else -now
+            return
+        base = float(last.get("run_time_s", last.get("rig_time_s", 0.0)))
+        if hasattr(self.clock, "advance") and now <= base:
+            self.clock.advance(base - now)
+            self._offset = 0.0
+            return
+        gap = 0.0
+        if not hasattr(self.clock, "advance") and "utc" in last:
+            gap = max(0.0, time.time() - datetime.datetime.fromisoformat(last["utc"]).timestamp())
+        self._offset = base + gap - now
 
     # -- the loop -------------------------------------------------------------------------------------
     def run(self) -> RunSummary:
         """Measure every point not yet in the journal, then write the table; stops safely on any fault."""
         started = self.clock.now()
         records = self.store.records()
+        self._continue_time(records)
         check_records(records, self.store.path / JOURNAL)
         done = {r["index"] for r in records if r["kind"] == "point"}
         ref_done = {r["slot"]: r for r in records if r["kind"] == "reference"}
@@ -229,8 +276,15 @@ class Runner:
     # -- one point, one reference ---------------------------------------------------------------------
     def _point(self, pos: int, point: PlannedPoint, level: Level | None) -> Reading:
         actual = self._move(point.joints, point.via)
-        d = forward(self.geometry, actual)
+        d = aligned_forward(self.geometry, actual, self.alignment)
+        t0 = self.now()
         reading = self._read(level)
+        t1 = self.now()
+        fault: LinkError | None = None
+        try:  # where the axes stood at the end: how far they moved during the frames
+            after: Mapping[str, float] = self.link.read_positions()
+        except LinkError as exc:  # the reading is taken: keep it, then stop on the fault
+            after, fault = {k: float(v) for k, v in actual.as_dict().items()}, exc
         image = None
         if self.options.save_images:
             image = str(self.store.save_image(f"point_{point.index:05d}", reading.hdr.radiance,
@@ -241,10 +295,32 @@ class Runner:
             "theta_i_deg": _f(float(d.theta_i)), "phi_i_deg": _f(float(d.phi_i)),
             "theta_o_deg": _f(float(d.theta_o)), "phi_o_deg": _f(float(d.phi_o)),
             "joints_deg": {k: _f(float(v)) for k, v in actual.as_dict().items()},
-            **self._reading_fields(reading), "image": image, "rig_time_s": self.clock.now(),
+            **self._reading_fields(reading), "image": image, **self._times(t0, t1),
+            **self._uncertainty(actual, after),
         })  # fmt: skip
         self._measured += 1
+        if fault is not None:
+            raise fault
         return reading
+
+    def _uncertainty(self, before: Joints, after: Mapping[str, float]) -> dict[str, Any]:
+        """The directions' covariances (rig.instrument.direction_uncertainty) for the journal."""
+        variance = {}
+        for name, value in before.as_dict().items():
+            moved = float(after.get(name, value)) - float(value)
+            variance[name] = self._resolution.get(name, 0.0) ** 2 / 12.0 + moved * moved / 12.0
+        cal = self.calibration
+        angles, tangent = direction_covariances(
+            self.geometry, before, self.alignment, variance, cal.names if cal else (),
+            cal.covariance if cal is not None and cal.covariance.size else None,
+        )  # fmt: skip
+        return {"angle_cov_deg2": np.round(angles, 15).tolist(), "direction_cov": np.round(tangent, 18).tolist()}
+
+    def _times(self, start: float, end: float) -> dict[str, Any]:
+        """Time stamps of a record: rig clock, run time (s) at the record and at the reading's middle, UTC."""
+        utc = datetime.datetime.now(datetime.UTC).isoformat(timespec="microseconds")
+        return {"rig_time_s": self.clock.now(), "run_time_s": self.now(), "reading_time_s": 0.5 * (start + end),
+                "utc": utc}  # fmt: skip
 
     def _reading_fields(self, reading: Reading) -> dict[str, Any]:
         r = reading.roi
@@ -260,17 +336,20 @@ class Runner:
     def _reference(self, slot: int, last: Mapping[str, Any] | None) -> dict[str, Any]:
         assert self.reference is not None and self.target is not None
         ref = self.reference
-        self._move(ref.joints)
+        held = self._move(ref.joints)
         self.target.present(slot)
         try:
             previous = Level.from_dict(last["level"]) if last is not None else None
             snr = ref.target_snr or self.capture.target_snr
+            t0 = self.now()
             reading = self._read(previous, dataclasses.replace(self.capture, target_snr=snr))
+            t1 = self.now()
         finally:
             self.target.withdraw()
         record: dict[str, Any] = {
             "kind": "reference", "slot": slot, "theta_i_deg": ref.theta_i_deg, "theta_o_deg": ref.theta_o_deg,
-            "target": self.target.description, **self._reading_fields(reading), "rig_time_s": self.clock.now(),
+            "joints_deg": {k: _f(float(v)) for k, v in held.as_dict().items()},
+            "target": self.target.description, **self._reading_fields(reading), **self._times(t0, t1),
         }  # fmt: skip
         if reading.roi.lower_bound:
             raise _CameraFailed("the reference reading saturated in every frame; lower the light or the exposure")

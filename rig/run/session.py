@@ -16,7 +16,9 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.exposure.spec import CameraTiming
-from rig.instrument.kinematics import inverse, require
+from rig.instrument.alignment import aligned_inverse
+from rig.instrument.calibration_file import GeometryCalibration
+from rig.instrument.kinematics import forward, inverse, require
 from rig.instrument.kinematics_types import UnreachableError
 from rig.run.backends import Instruments, StartPose, backend
 from rig.run.calibrate import camera_flat_field, camera_noise
@@ -53,6 +55,9 @@ def reference_settings(rig: RigConfig) -> ReferenceSettings | None:
         return None
     try:
         joints = require(inverse(rig.geometry, ref.theta_i_deg, 0.0, ref.theta_o_deg, 180.0))
+        if not rig.alignment.is_zero:
+            d = forward(rig.geometry, joints)
+            joints, _ = aligned_inverse(rig.geometry, d.wi, d.wo, rig.alignment)
     except UnreachableError as exc:
         raise ConfigError(
             f"{rig.path}: [reference] theta_i_deg = {ref.theta_i_deg!r}, theta_o_deg = {ref.theta_o_deg!r}: "
@@ -79,7 +84,7 @@ def make_plan(rig: RigConfig, sweep: SweepConfig) -> Plan:
         exposure_s_per_point=per_point, reference_every=ref.every if ref else 0,
         reference_s=per_point if ref else 0.0, reference_joints=ref.joints if ref else None,
         order=sweep.file.sweep.order, isotropic=sweep.file.sweep.isotropic,
-        coordinated=backend(rig.file.link.kind).for_file(rig.file).coordinated,
+        coordinated=backend(rig.file.link.kind).for_file(rig.file).coordinated, alignment=rig.alignment,
     )  # fmt: skip
 
 
@@ -108,6 +113,7 @@ def manifest(rig: RigConfig, sweep: SweepConfig, plan: Plan, run_options: RunOpt
         "estimate_s": plan.estimate.total_s if math.isfinite(plan.estimate.total_s) else None,
         "options": {"move_timeout_s": run_options.move_timeout_s, "on_stop": run_options.on_stop,
                     "save_images": run_options.save_images, "include_cosine": run_options.include_cosine},
+        "geometry_calibration": rig.calibration.snapshot() if rig.calibration is not None else None,
     }  # fmt: skip
 
 
@@ -124,7 +130,7 @@ def _run(store: RunStore, rig: RigConfig, sweep: SweepConfig, plan: Plan, progre
         runner = Runner(
             plan, store, inst.link, inst.camera, inst.clock, rig.geometry, capture_settings(rig, sweep),
             reference=reference_settings(rig) if inst.target is not None else None, target=inst.target,
-            options=options_for(rig, sweep, progress),
+            options=options_for(rig, sweep, progress), calibration=rig.calibration, axes=rig.axes,
         )  # fmt: skip
         return runner.run()
 
@@ -141,7 +147,9 @@ def start_run(rig: RigConfig, sweep: SweepConfig, out: str | Path, *, progress: 
 def configs_of(store: RunStore) -> tuple[RigConfig, SweepConfig]:
     """The rig and sweep a run was started with, rebuilt from its manifest."""
     m = store.manifest
-    rig = rig_config(parse(m["rig"], RigFile, f"{store.path}/manifest.json rig"), m["rig_path"])
+    snap = m.get("geometry_calibration")
+    cal = GeometryCalibration.from_snapshot(snap) if snap else None
+    rig = rig_config(parse(m["rig"], RigFile, f"{store.path}/manifest.json rig"), m["rig_path"], calibration=cal)
     sweep = sweep_config(parse(m["sweep"], SweepFile, f"{store.path}/manifest.json sweep"), m["sweep_path"])
     return rig, sweep
 

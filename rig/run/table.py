@@ -1,19 +1,27 @@
 """The run's tidy table of BRDF samples, computed from the journal alone.
 
 Points are calibrated against the reference readings around them in the run's order: the reference taken
-before a point and the next one after it, interpolated linearly in position (the run's drift correction);
-the last points, with no reference after them, use the last one. Because the table is a function of the
+before a point and the next one after it, interpolated linearly in time (the run's drift correction: a lamp
+drifts with time, and points are not evenly spaced in time when moves differ in length); the last points,
+with no reference after them, use the last one. Time is each reading's ``reading_time_s`` (run time at the
+middle of its exposures); journals written before readings carried it are interpolated in position.
+Because the table is a function of the
 journal, a run resumed after a crash ends with the table of an uninterrupted run.
 
 Columns: the sweep index; measured and target BRDF angles (deg); the joint angles read back (deg); per
 channel r, g, b: the BRDF (1/sr) with its standard error and the error without the reference albedo's
 common part, and the raw reading (counts/s at gain 1) with its error; whether the value is a lower
 bound (saturated pixels); whether the ROI was dark (no light detected even after metering: the value is
-noise about zero); the frames and their total exposure (s).
+noise about zero); the frames and their total exposure (s); the standard uncertainty of the measured
+angles (``theta_i_std_deg`` ... ``phi_o_std_deg``, deg) and the covariance of the local directions' tangent
+components (``direction_cov``, a JSON 4 x 4 over wi_x, wi_y, wo_x, wo_y; see
+``rig.instrument.direction_uncertainty``), empty for journals written before points carried them.
 """
 
 from __future__ import annotations
 
+import json
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -24,20 +32,44 @@ from acquisition.calibration import ReferenceCalibration
 CHANNELS = ("r", "g", "b")
 
 
+def _times(point: Mapping[str, Any], ref: Mapping[str, Any], nxt: Mapping[str, Any] | None) -> tuple[float, ...]:
+    """(reference, closing reference, point) times: reading times where all have one, else positions."""
+    used = [point, ref] + ([nxt] if nxt is not None else [])
+    if all("reading_time_s" in r for r in used):
+        t = (float(ref["reading_time_s"]), float(nxt["reading_time_s"]) if nxt else math.nan,
+             float(point["reading_time_s"]))  # fmt: skip
+        if nxt is None or t[0] < t[1]:
+            return t
+    return float(ref["slot"]), float(nxt["slot"]) if nxt else math.nan, point["position"] + 0.5
+
+
 def _calibration(
-    ref: Mapping[str, Any], nxt: Mapping[str, Any] | None, albedo: Any, albedo_se: float
+    ref: Mapping[str, Any], nxt: Mapping[str, Any] | None, albedo: Any, albedo_se: float, times: tuple[float, ...]
 ) -> ReferenceCalibration:
     cal = ReferenceCalibration(
         np.asarray(ref["reading"], dtype=float), np.asarray(ref["reading_std_error"], dtype=float),
         np.asarray(albedo, dtype=float), np.asarray(albedo_se, dtype=float), float(ref["theta_i_deg"]),
-        float(ref["theta_o_deg"]), time_s=float(ref["slot"]), description="Lambertian reference",
+        float(ref["theta_o_deg"]), time_s=times[0], description="Lambertian reference",
     )  # fmt: skip
     if nxt is not None:
         cal = cal.with_closing_reading(
             np.asarray(nxt["reading"], dtype=float), np.asarray(nxt["reading_std_error"], dtype=float),
-            time_s=float(nxt["slot"]),
+            time_s=times[1],
         )  # fmt: skip
     return cal
+
+
+ANGLES = ("theta_i", "phi_i", "theta_o", "phi_o")
+
+
+def _direction_columns(p: Mapping[str, Any]) -> dict[str, Any]:
+    """The angles' standard uncertainties (deg) and the directions' tangent covariance (JSON) of a point."""
+    if "angle_cov_deg2" not in p:
+        return {f"{a}_std_deg": None for a in ANGLES} | {"direction_cov": None}
+    var = np.diag(np.asarray(p["angle_cov_deg2"], dtype=float))
+    out: dict[str, Any] = {f"{a}_std_deg": float(np.sqrt(max(v, 0.0))) for a, v in zip(ANGLES, var, strict=True)}
+    out["direction_cov"] = json.dumps(p["direction_cov"], separators=(",", ":"))
+    return out
 
 
 def _channels(prefix: str, values: Sequence[float] | None) -> dict[str, Any]:
@@ -66,11 +98,15 @@ def build_rows(
         brdf = se = se_read = None
         lower = bool(p["lower_bound"])
         if before and albedo is not None:
-            cal = _calibration(before[-1], after[0] if after else None, albedo, albedo_std_error)
+            nxt = after[0] if after else None
+            times = _times(p, before[-1], nxt)
+            cal = _calibration(before[-1], nxt, albedo, albedo_std_error, times)
+            # Readings in the middle of the references' own exposures are clipped into their span.
+            t = min(max(times[2], times[0]), times[1]) if nxt is not None else None
             sample = cal.to_brdf(
                 np.asarray(p["reading"], dtype=float), p["theta_i_deg"], p["theta_o_deg"],
                 std_error=np.asarray(p["reading_std_error"], dtype=float),
-                time_s=pos + 0.5 if after else None, include_cosine=include_cosine,
+                time_s=t, include_cosine=include_cosine,
             )  # fmt: skip
             brdf, se, se_read = sample.value.tolist(), sample.std_error.tolist(), sample.std_error_readings.tolist()
         row: dict[str, Any] = {"index": p["index"]}
@@ -88,5 +124,6 @@ def build_rows(
         row["n_frames"] = len(p["exposures_s"])
         row["total_exposure_s"] = float(sum(p["exposures_s"]))
         row["exposures_s"] = ";".join(repr(float(t)) for t in p["exposures_s"])
+        row |= _direction_columns(p)
         rows.append(row)
     return rows

@@ -46,7 +46,13 @@ _FIXED = {
     "total_exposure_s": ("float", "s", "sum of the bracket's exposure times"),
     "exposures_s": ("list", "s", "exposure time of each frame of the bracket, in capture order"),
     "round": ("int", "", "round of the adaptive sweep that measured the point (0 is the space-filling start)"),
+    "direction_cov": ("str", "", "JSON: the 4 x 4 covariance of the local unit directions' tangent components wi_x, "
+                      "wi_y, wo_x, wo_y (dimensionless, rad^2 for small errors); empty in older journals"),
 }
+for _a, _text in _ANGLES.items():
+    _FIXED[_a.replace("_deg", "_std_deg")] = (
+        "float", "deg", f"standard uncertainty of the measured {_text} (joints and geometry); empty in older journals"
+    )
 _CHANNEL_COLUMN = re.compile(r"^(?P<what>brdf|brdf_se|brdf_se_readings|reading|reading_se)_(?P<c>[a-z0-9]+)$")
 
 

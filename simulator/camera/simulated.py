@@ -63,8 +63,10 @@ class SensorPatch:
     sensor: tuple[int, int] | None = None
 
 
-RadianceSource = Callable[[], "npt.NDArray[np.float64] | SensorPatch"]
-"""Returns the radiance (W/(m^2 sr)) the camera sees now, (H, W, 3), or a :class:`SensorPatch` of it."""
+RadianceSource = Callable[..., "npt.NDArray[np.float64] | SensorPatch"]
+"""Returns the radiance (W/(m^2 sr)) the camera sees now, (H, W, 3), or a :class:`SensorPatch` of it; called
+with ``full_frame=True`` when the camera is set to deliver whole frames (a source that renders only an ROI
+renders everything then)."""
 
 
 def window_around(box: tuple[int, int, int, int], resolution: tuple[int, int], min_side: int) -> tuple[int, ...]:
@@ -157,6 +159,7 @@ class SimulatedCamera:
         dng_dir: Path | None = None,
         camera_id: str = "gonio simulated camera",
         state_key: Callable[[], Hashable] | None = None,
+        stray_counts_per_s: float = 0.0,
         response: PixelResponse | None = None,
         keep_dng: bool = True,
     ) -> None:
@@ -166,6 +169,11 @@ class SimulatedCamera:
             )
         if fixed_pattern_dn < 0:
             raise ValueError(f"fixed_pattern_dn = {fixed_pattern_dn!r}: expected an RMS >= 0 counts")
+        if not (math.isfinite(stray_counts_per_s) and stray_counts_per_s >= 0):
+            raise ValueError(f"stray_counts_per_s = {stray_counts_per_s!r}: expected counts per second >= 0")
+        self.stray_counts_per_s = float(stray_counts_per_s)
+        #: Deliver whole frames (geometry calibration) instead of the ROI a run reads.
+        self.full_frame = False
         if dng_dir is not None and kind != "raw":
             raise ValueError(f"dng_dir needs kind='raw' (DNG holds a CFA mosaic), got kind={kind!r}")
         self._source = source
@@ -213,7 +221,7 @@ class SimulatedCamera:
         return self._settings
 
     def _patch(self) -> SensorPatch:
-        got = self._source()
+        got = self._source(full_frame=True) if self.full_frame else self._source()
         patch = got if isinstance(got, SensorPatch) else SensorPatch(np.asarray(got, dtype=np.float64))
         radiance = np.asarray(patch.radiance, dtype=np.float64)
         if radiance.ndim != 3 or radiance.shape[2] != 3:
@@ -230,7 +238,8 @@ class SimulatedCamera:
         with self._lock:
             patch = self._patch()
             rate = np.asarray(patch.radiance, dtype=np.float64) * self.optics.counts_per_radiance(self.noise)
-            return self._expose(rate, patch, dark=False)
+            # Ambient light reaches the sensor whenever the shutter is open, whatever the lamp does.
+            return self._expose(rate + self.stray_counts_per_s if self.stray_counts_per_s else rate, patch, dark=False)
 
     def capture_dark(self) -> Frame:
         """One frame with the shutter closed at the current settings (black, dark current, offsets, noise)."""

@@ -36,7 +36,7 @@ from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics_types import RigPose
 from simulator.render.scene import build_scene
 from simulator.render.spec import Box, BSDFLike, CameraSpec, LightSpec, bsdf_dict, check_box
-from simulator.render.view import roi_box
+from simulator.render.view import _unit, _vec3, camera_view, pixel_on_sample, roi_box
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -114,15 +114,37 @@ def roi_radiance(
     return roi_mean(image, roi, (roi[0], roi[1]))
 
 
+def beam_profile(
+    geometry: RigGeometry, pose: RigPose, light: LightSpec, camera: CameraSpec, crop: Box | None = None
+) -> FloatArray:
+    """The lamp's relative irradiance on the sample point each pixel sees, (H, W) (the crop's size if cropped).
+
+    1 - falloff (a / a_edge)^2 at the angle a off the beam's axis (light to aim point), a_edge the edge of
+    the lit spot (``LightSpec.edge_deg``); a delta or disk light's rendered radiance scales with it pixel by
+    pixel.
+    """
+    x0, y0, x1, y1 = crop if crop is not None else (0, 0, *camera.resolution)
+    py, px = np.mgrid[y0:y1, x0:x1] + 0.5
+    p, _ = pixel_on_sample(camera_view(geometry, pose, camera), pose, px, py)
+    src = _vec3("light_position_m", pose.light_position_m)
+    axis = _unit(_vec3("aim_m", pose.aim()) - src)
+    to_p = p - src
+    with np.errstate(invalid="ignore"):
+        off = np.degrees(np.arccos(np.clip((to_p @ axis) / np.linalg.norm(to_p, axis=-1), -1.0, 1.0)))
+    factor = 1.0 - light.falloff * (off / light.edge_deg(geometry)) ** 2
+    out: FloatArray = np.where(np.isfinite(factor), np.maximum(factor, 0.0), 1.0)
+    return out
+
+
 def material_key(bsdf: BSDFLike) -> str:
     """A canonical text key of a BSDF dict (sorted JSON; non-JSON values by repr) for caching."""
     return json.dumps(bsdf_dict(bsdf), sort_keys=True, default=repr)
 
 
 def pose_key(pose: RigPose, decimals: int = 6) -> tuple[float, ...]:
-    """The pose's six vectors rounded to ``decimals`` (metres and unit-vector components), flattened."""
+    """The pose's seven vectors (with the aim point) rounded to ``decimals`` (metres, unit vectors), flattened."""
     parts = (pose.sample_centre_m, pose.sample_normal, pose.sample_tangent, pose.sample_bitangent,
-             pose.light_position_m, pose.camera_position_m)
+             pose.light_position_m, pose.camera_position_m, pose.aim())
     # + 0.0 folds -0.0 into 0.0 so mirrored rounding does not split one pose into two keys.
     return tuple(float(v) for p in parts for v in np.round(np.asarray(p, dtype=np.float64).reshape(3), decimals) + 0.0)
 
@@ -219,6 +241,8 @@ class RadianceRenderer:
             self.misses += 1
         scene = build_scene(self.geometry, pose, bsdf, light, camera, crop)
         image = render_radiance(scene, variant, seed, evaluated_calls=needs_evaluated_calls(bsdf))
+        if light.falloff > 0:
+            image = image * beam_profile(self.geometry, pose, light, camera, crop)[..., None]
         image.setflags(write=False)
         with self._lock:
             if cache_key not in self._cache:

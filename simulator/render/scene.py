@@ -9,8 +9,9 @@ the arm axis). What is modelled, and what is not ("model only what the scene req
   so the BSDF local frame is the kinematics' local frame: phi angles and anisotropic materials agree.
   The rectangle is one-sided for ordinary BSDFs: seen or lit from behind it renders black.
 - One light at ``pose.light_position_m``: an isotropic ``point`` emitter, or a ``spot`` aimed at the
-  sample centre. Both are delta lights.
-- A ``perspective`` camera at ``pose.camera_position_m`` looking at the sample centre (image up is the
+  aim point (``pose.aim()``, the arms' axis); both are delta lights. A point light of ``LightSpec.size_m``
+  > 0 is a Lambertian disk of that diameter facing the aim point, with the same on-axis intensity.
+- A ``perspective`` camera at ``pose.camera_position_m`` looking at the aim point (image up is the
   world +z, the arm axis, unless the view is nearly vertical). The rig's ``camera_fov_deg`` is a cone;
   by default it spans the image's smaller side (``fov_axis="smaller"``), so the circle of
   ``RigGeometry.view_radius_m`` lies inside the image.
@@ -34,10 +35,11 @@ import mitsuba.scalar_rgb as mis  # variant-free scalar types; the transforms lo
 import numpy as np
 import numpy.typing as npt
 
+from rig.instrument.camera_model import up_for
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics_types import RigPose
 from simulator.render.spec import Box, BSDFLike, CameraSpec, LightSpec, bsdf_dict, check_box
-from simulator.render.view import _unit, _up_for, _vec3, camera_view
+from simulator.render.view import _unit, _vec3, camera_view
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -52,13 +54,27 @@ def _look_at(origin: FloatArray, forward: FloatArray, left: FloatArray, up: Floa
     return _transform(m)
 
 
+def _look_at_matrix(origin: FloatArray, forward: FloatArray, left: FloatArray) -> FloatArray:
+    """A 4x4 frame at ``origin`` whose z axis is ``forward`` (a disk's normal faces along its z)."""
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = left, np.cross(forward, left), forward, origin
+    return m
+
+
 def _emitter(geometry: RigGeometry, pose: RigPose, light: LightSpec) -> dict[str, Any]:
     position = _vec3("light_position_m", pose.light_position_m)
     intensity = {"type": "rgb", "value": list(light.rgb())}
+    forward = _unit(_vec3("aim_m", pose.aim()) - position)
+    left = _unit(np.cross(up_for(forward), forward))
+    if light.kind == "point" and light.size_m > 0:
+        # A Lambertian disk facing the aim point with the point light's on-axis intensity: I = L pi r^2.
+        r = 0.5 * light.size_m
+        scale = np.diag([r, r, 1.0, 1.0])
+        radiance = {"type": "rgb", "value": [v / (math.pi * r * r) for v in light.rgb()]}
+        return {"type": "disk", "to_world": _transform(_look_at_matrix(position, forward, left) @ scale),
+                "emitter": {"type": "area", "radiance": radiance}}  # fmt: skip
     if light.kind == "point":
         return {"type": "point", "position": position.tolist(), "intensity": intensity}
-    forward = _unit(_vec3("sample_centre_m", pose.sample_centre_m) - position)
-    left = _unit(np.cross(_up_for(forward), forward))
     beam, cutoff = light.cone_deg(geometry)
     return {
         "type": "spot",
@@ -105,7 +121,9 @@ def build_scene(
         film.update(crop_offset_x=x0, crop_offset_y=y0, crop_width=x1 - x0, crop_height=y1 - y0)
     return {
         "type": "scene",
-        "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0},
+        # A delta light is reached by emitter sampling alone; a disk also by BSDF sampling (MIS), which a
+        # near-mirror needs to see it.
+        "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 1 if light.size_m > 0 else 0},
         "sensor": {
             "type": "perspective",
             "fov": camera.fov(geometry),

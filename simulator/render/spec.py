@@ -6,6 +6,7 @@ Pixels: (x, y) with x to the right and y down, pixel (i, j) covering [i, i + 1) 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol
@@ -37,12 +38,17 @@ class LightSpec:
     cutoff_deg: spot only; no light beyond this half-angle. None: ``RigGeometry.beam_half_angle_deg``.
     beam_width_deg: spot only; full intensity within this half-angle, falling linearly in angle to 0 at
         the cutoff (Mitsuba's spot). None: 3/4 of the cutoff, Mitsuba's default.
+    size_m: point only; the diameter (m) of a disk source in place of a point (0: a point).
+    falloff: the fraction by which the irradiance falls at the edge of the lit spot (``edge_deg``),
+        quadratically in the angle off the beam's axis (0: uniform); applied by ``RadianceRenderer``.
     """
 
     kind: Literal["point", "spot"] = "point"
     intensity: float | tuple[float, float, float] = 1.0
     cutoff_deg: float | None = None
     beam_width_deg: float | None = None
+    size_m: float = 0.0
+    falloff: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in ("point", "spot"):
@@ -57,11 +63,23 @@ class LightSpec:
             value = getattr(self, name)
             if value is not None and not 0.0 < value <= 90.0:
                 raise ValueError(f"LightSpec.{name} = {value!r} deg, expected a value in (0, 90]")
+        if not (np.isfinite(self.size_m) and 0.0 <= self.size_m <= 0.2):
+            raise ValueError(f"LightSpec.size_m = {self.size_m!r} m, expected a disk diameter in [0, 0.2]")
+        if self.size_m > 0 and self.kind != "point":
+            raise ValueError("LightSpec.size_m: only a point light can be given a size (a disk source)")
+        if not (np.isfinite(self.falloff) and 0.0 <= self.falloff < 1.0):
+            raise ValueError(f"LightSpec.falloff = {self.falloff!r}, expected a fraction in [0, 1)")
 
     def rgb(self) -> tuple[float, float, float]:
         """Intensity in W/sr per RGB channel."""
         v = np.broadcast_to(np.asarray(self.intensity, dtype=np.float64).reshape(-1), (3,))
         return (float(v[0]), float(v[1]), float(v[2]))
+
+    def edge_deg(self, geometry: RigGeometry) -> float:
+        """Half-angle (deg) of the lit spot: a spot's cutoff; for a point light the sample's half width."""
+        if self.kind == "spot":
+            return self.cone_deg(geometry)[1]
+        return math.degrees(math.atan2(0.5 * geometry.sample_width_m, geometry.light_radius_m))
 
     def cone_deg(self, geometry: RigGeometry) -> tuple[float, float]:
         """The spot's (beam_width, cutoff) half-angles in degrees, defaults filled in from the rig."""

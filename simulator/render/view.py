@@ -1,6 +1,7 @@
 """The camera of the rendered scene as a numpy pinhole model, and the region of interest it picks.
 
-``camera_view`` reproduces the ``perspective`` sensor that ``simulator.render.scene.build_scene`` places, so
+``camera_view`` reproduces the ``perspective`` sensor that ``simulator.render.scene.build_scene`` places (as
+the controller's ``rig.instrument.camera_model``, which it builds on), so
 world points can be projected to pixels (and pixels cast back onto the sample) without Mitsuba; the
 default ROI is the largest centred box whose pixels all see the central part of the sample.
 """
@@ -8,20 +9,16 @@ default ROI is the largest centred box whose pixels all see the central part of 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
+from rig.instrument.camera_model import CameraView, aimed_camera, focal_length_px
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics_types import RigPose
 from simulator.render.spec import Box, CameraSpec, LightSpec
 
 FloatArray = npt.NDArray[np.float64]
-
-#: Cosine of the angle between the view direction and world z above which world z cannot serve as up.
-_UP_DEGENERATE_COS = 0.999
-
 
 def _vec3(name: str, value: npt.ArrayLike) -> FloatArray:
     a = np.asarray(value, dtype=np.float64)
@@ -35,56 +32,11 @@ def _unit(v: FloatArray) -> FloatArray:
     return out
 
 
-@dataclass(frozen=True)
-class CameraView:
-    """The pinhole camera Mitsuba's ``perspective`` sensor implements, in world metres and pixels.
-
-    ``left``/``up``/``forward`` are the columns of Mitsuba's ``look_at``; image x grows towards -left and
-    image y towards -up, and ``focal_px`` is the focal length in pixels (square pixels).
-    """
-
-    origin: FloatArray
-    forward: FloatArray
-    left: FloatArray
-    up: FloatArray
-    focal_px: float
-    width: int
-    height: int
-
-    def project(self, points_m: npt.ArrayLike) -> FloatArray:
-        """Continuous pixel coordinates (..., 2) of world points (..., 3) in metres (in front of the camera)."""
-        d = np.asarray(points_m, dtype=np.float64) - self.origin
-        z = d @ self.forward
-        x = 0.5 * self.width - self.focal_px * (d @ self.left) / z
-        y = 0.5 * self.height - self.focal_px * (d @ self.up) / z
-        return np.stack([x, y], axis=-1)
-
-    def ray(self, px: npt.ArrayLike, py: npt.ArrayLike) -> FloatArray:
-        """Unit world directions (..., 3) of the rays through continuous pixel coordinates."""
-        a = (0.5 * self.width - np.asarray(px, dtype=np.float64))[..., None]
-        b = (0.5 * self.height - np.asarray(py, dtype=np.float64))[..., None]
-        d = self.focal_px * self.forward + a * self.left + b * self.up
-        out: FloatArray = d / np.linalg.norm(d, axis=-1, keepdims=True)
-        return out
-
-
-def _up_for(forward: FloatArray) -> FloatArray:
-    """World z, the arm axis, unless the view is nearly vertical; then world x (a top-down view)."""
-    z = np.array([0.0, 0.0, 1.0])
-    return z if abs(float(forward @ z)) < _UP_DEGENERATE_COS else np.array([1.0, 0.0, 0.0])
-
-
 def camera_view(geometry: RigGeometry, pose: RigPose, camera: CameraSpec) -> CameraView:
     """The camera of ``build_scene`` as a numpy pinhole model: where world points land in the image."""
-    origin = _vec3("camera_position_m", pose.camera_position_m)
-    target = _vec3("sample_centre_m", pose.sample_centre_m)
-    forward = _unit(target - origin)
-    left = _unit(np.cross(_up_for(forward), forward))
-    up = np.cross(forward, left)
     w, h = camera.resolution
-    size = {"x": w, "y": h, "smaller": min(w, h), "larger": max(w, h), "diagonal": math.hypot(w, h)}
-    focal = 0.5 * size[camera.fov_axis] / math.tan(math.radians(0.5 * camera.fov(geometry)))
-    return CameraView(origin, forward, left, up, focal, w, h)
+    focal = focal_length_px(camera.fov(geometry), w, h, camera.fov_axis)
+    return aimed_camera(_vec3("camera_position_m", pose.camera_position_m), _vec3("aim_m", pose.aim()), focal, w, h)
 
 
 def pixel_on_sample(view: CameraView, pose: RigPose, px: npt.ArrayLike, py: npt.ArrayLike) -> tuple[FloatArray, ...]:

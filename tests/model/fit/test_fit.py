@@ -235,7 +235,9 @@ def test_point_errors_leave_out_the_calibration_share() -> None:
     assert np.allclose(Samples.from_table_rows([dark], errors="point").std_error, [[1e-4, 3e-4, 4e-4]])
     with pytest.raises(FitError, match="reading_se_r"):
         Samples.from_table_rows([{k: v for k, v in row.items() if k != "reading_se_r"}], "t.csv", errors="point")
-    with pytest.raises(FitError, match="'total' or 'point'"):
+    with pytest.raises(FitError, match="'total', 'point' or 'readings'"):
+        Samples.from_table_rows([row], errors="reading")
+    with pytest.raises(FitError, match=r"'readings' needs the columns \['brdf_se_readings_r'"):
         Samples.from_table_rows([row], errors="readings")
 
 

@@ -80,7 +80,7 @@ def test_renderer_cache_hits_and_misses() -> None:
     renderer = RadianceRenderer(GEOMETRY, POINT, CAMERA, variant="scalar_rgb", maxsize=2)
     pose = pose_at(30.0, 0.0, 45.0, 180.0)
     first = renderer.render(pose, DIFFUSE)
-    again = renderer.render(RigPose(*(v + 1e-9 for v in astuple(pose))), dict(DIFFUSE))
+    again = renderer.render(RigPose(*(v + 1e-9 for v in astuple(pose)[:6])), dict(DIFFUSE))
     assert again is first and not first.flags.writeable
     assert (renderer.stats.hits, renderer.stats.misses) == (1, 1)
     other_material = {"type": "diffuse", "reflectance": rgb([0.2, 0.2, 0.2])}

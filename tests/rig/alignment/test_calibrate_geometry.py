@@ -1,0 +1,126 @@
+"""`gonio calibrate geometry` on misaligned simulated rigs, and the calibration applied by a rig file."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gonio.cli import main
+from rig.instrument.alignment import aligned_forward
+from rig.run.config import ConfigError, load_rig, load_sweep
+from rig.run.session import make_plan
+
+pytestmark = pytest.mark.mitsuba
+
+MISALIGNMENT = {
+    "light_zero_deg": 0.5, "camera_zero_deg": -0.3, "tilt_zero_deg": 0.25, "roll_zero_deg": 0.6,
+    "sample_tilt_deg": 0.5, "sample_tilt_azimuth_deg": 40.0, "sample_offset_mm": [1.0, -1.2, 0.6],
+}  # fmt: skip
+NAMES = ("light_zero_deg", "camera_zero_deg", "tilt_zero_deg", "roll_zero_deg", "sample_tilt_deg",
+         "sample_tilt_azimuth_deg")  # fmt: skip
+
+
+def _rig_file(tmp: Path, misalignment: dict, resolution: int = 320, extra: str = "") -> Path:
+    lines = ["[camera]", f"resolution = [{resolution}, {resolution}]", "spp = 2", "[simulation]", "seed = 4",
+             "[simulation.misalignment]"]  # fmt: skip
+    for key, value in misalignment.items():
+        lines.append(f"{key} = {json.dumps(value)}")
+    path = tmp / "rig.toml"
+    path.write_text(extra + "\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    tmp = tmp_path_factory.mktemp("calibrated")
+    rig = _rig_file(tmp, MISALIGNMENT)
+    assert main(["calibrate", "geometry", "--rig", str(rig), "--out", str(tmp), "--captures", "12", "--quiet"]) == 0
+    return tmp, json.loads((tmp / "geometry_calibration.json").read_text())
+
+
+def test_the_calibration_file_names_every_quantity_with_value_and_error(calibrated: tuple[Path, dict]) -> None:
+    _, doc = calibrated
+    for name in (*NAMES, "sample_offset_mm"):
+        assert set(doc[name]) == {"value", "std_error"}, name
+    assert len(doc["sample_offset_mm"]["value"]) == 3 and len(doc["captures"]) == 12
+    assert doc["residuals"]["corners_rms_px"] < 0.5 and doc["residuals"]["highlights_rms_px"] < 1.5, doc["residuals"]
+    corr = np.asarray(doc["correlation"]["matrix"])
+    assert corr.shape == (9, 9) and np.allclose(np.diag(corr), 1.0)
+
+
+def test_twelve_captures_recover_the_hidden_rig(calibrated: tuple[Path, dict]) -> None:
+    _, doc = calibrated
+    for name in NAMES:
+        err = doc[name]["value"] - MISALIGNMENT[name]
+        assert abs(err) <= 4 * doc[name]["std_error"] + 1e-9, (name, err, doc[name]["std_error"])
+        if name.endswith("zero_deg") or name == "sample_tilt_deg":
+            assert abs(err) < 0.05, (name, err)
+    err = np.subtract(doc["sample_offset_mm"]["value"], MISALIGNMENT["sample_offset_mm"])
+    assert np.all(np.abs(err) <= 4 * np.asarray(doc["sample_offset_mm"]["std_error"]) + 1e-6), err
+
+
+def test_a_rig_file_applies_the_calibration_and_plan_shows_it(
+    calibrated: tuple[Path, dict], capsys: pytest.CaptureFixture[str]
+) -> None:
+    tmp, doc = calibrated
+    rig_path = _rig_file(tmp, MISALIGNMENT, extra=f'[geometry]\ncalibration = "{tmp / "geometry_calibration.json"}"\n')
+    os.utime(rig_path, (0, 0))  # older than the calibration: no staleness warning
+    rig = load_rig(rig_path)
+    assert rig.calibration is not None and rig.alignment.light_zero_deg == pytest.approx(doc["light_zero_deg"]["value"])
+    sweep = tmp / "sweep.toml"
+    sweep.write_text('[sweep]\nkind = "in_plane"\ntheta_i_deg = [30.0]\ntheta_o_deg = [20.0, 40.0]\n')
+    plan = make_plan(rig, load_sweep(sweep))
+    drawn = make_plan(load_rig(_rig_file(tmp_path_factory_dir(tmp), MISALIGNMENT)), load_sweep(sweep))
+    for point, nominal in zip(plan.points, drawn.points, strict=True):
+        # On the calibrated rig these joints measure the wanted directions; the drawn rig's would not.
+        d = aligned_forward(rig.geometry, point.joints, rig.alignment)
+        assert (d.theta_i, d.theta_o) == (pytest.approx(point.directions_deg[0], abs=1e-6),
+                                          pytest.approx(point.directions_deg[2], abs=1e-6))  # fmt: skip
+        assert abs(point.joints.light - nominal.joints.light) > 0.2
+    assert main(["plan", str(sweep), "--rig", str(rig_path)]) == 0
+    out = capsys.readouterr()
+    assert "geometry calibration" in out.out and "zeros (deg) light +0.5" in out.out
+    assert "changed" not in out.err
+    rig_path.touch()  # the rig file is now newer than its calibration
+    assert main(["plan", str(sweep), "--rig", str(rig_path)]) == 0
+    assert "after its geometry calibration" in capsys.readouterr().err
+
+
+def tmp_path_factory_dir(tmp: Path) -> Path:
+    other = tmp / "drawn"
+    other.mkdir(exist_ok=True)
+    return other
+
+
+def test_a_bad_calibration_file_names_the_file_and_key(tmp_path: Path) -> None:
+    bad = tmp_path / "geometry_calibration.json"
+    bad.write_text(json.dumps({"format": "gonio geometry calibration", "version": 1, "light_zero_deg": {"value": "x"}}))
+    rig = _rig_file(tmp_path, {}, extra='[geometry]\ncalibration = "geometry_calibration.json"\n')
+    where = r"geometry\.calibration = 'geometry_calibration\.json': .*light_zero_deg\.value"
+    with pytest.raises(ConfigError, match=where):
+        load_rig(rig)
+    rig.write_text('[geometry]\ncalibration = "missing.json"\n')
+    with pytest.raises(ConfigError, match="no such file"):
+        load_rig(rig)
+
+
+def test_a_highlight_outside_every_planned_view_is_a_clear_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rig = _rig_file(tmp_path, {"light_zero_deg": 6.0})
+    code = main(["calibrate", "geometry", "--rig", str(rig), "--out", str(tmp_path), "--captures", "9", "--quiet"])
+    assert code == 2
+    assert "beyond what the planned poses can catch" in capsys.readouterr().err
+    assert not (tmp_path / "geometry_calibration.json").exists()
+
+
+def test_a_camera_too_coarse_for_the_board_is_refused_naming_the_key(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rig = _rig_file(tmp_path, {}, resolution=32)
+    assert main(["calibrate", "geometry", "--rig", str(rig), "--out", str(tmp_path), "--quiet"]) == 2
+    assert "camera.resolution = [32, 32]" in capsys.readouterr().err
