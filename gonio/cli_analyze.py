@@ -9,7 +9,8 @@ An existing analysis is not replaced without ``--force``: the command refuses (e
 and says what is there. Refusing rather than warning, because the command runs unattended in scripts where a
 warning scrolls by unread, and an earlier analysis may hold choices (models, loss, seed) worth comparing;
 ``--force`` or another ``--out`` is one word away. The report is written into a temporary directory beside
-the target and swapped in whole, so an analysis that fails half-way leaves the previous one as it was.
+the target and swapped in whole, so an analysis that fails half-way leaves the previous one as it was (a
+directory holding other files, not an analysis, gets the report written into it, and keeps its files).
 """
 
 from __future__ import annotations
@@ -35,26 +36,23 @@ def _positive(text: str) -> int:
     return value
 
 
-def _check_out(out: Path, force: bool) -> bool:
-    """Refuse to replace an analysis (or fill a directory holding other files) without --force; True if replacing."""
+def _whole(out: Path, force: bool) -> bool:
+    """Whether the report may replace ``out`` whole; refuses to replace an analysis without --force.
+
+    A directory that holds other files (not an analysis) gets the report written into it, as it always did:
+    replacing it whole would delete what it held.
+    """
     if not out.exists():
-        return False
+        return True
     if not out.is_dir():
         raise CliError(f"--out {out}: exists and is not a directory")
-    names = sorted(p.name for p in out.iterdir())
-    if not names:
-        return False
-    if (out / "fit.json").is_file():
-        what = _previous(out / "fit.json")
-        if not force:
-            raise CliError(f"{out}: holds an analysis already ({what}); --force replaces it, or --out names "
-                           "another directory")  # fmt: skip
-        print(f"gonio: warning: replacing the analysis in {out} ({what}) (--force)", file=sys.stderr)
-        return True
+    if not (out / "fit.json").is_file():
+        return not any(out.iterdir())
+    what = _previous(out / "fit.json")
     if not force:
-        raise CliError(f"--out {out}: not empty ({', '.join(names[:5])}) and not an analysis; --force replaces "
-                       "it with the report, or --out names another directory")  # fmt: skip
-    print(f"gonio: warning: replacing {out} (not an analysis: {', '.join(names[:5])}) (--force)", file=sys.stderr)
+        raise CliError(f"{out}: holds an analysis already ({what}); --force replaces it, or --out names "
+                       "another directory")  # fmt: skip
+    print(f"gonio: warning: replacing the analysis in {out} ({what}) (--force)", file=sys.stderr)
     return True
 
 
@@ -77,11 +75,14 @@ def _analyze(args: argparse.Namespace) -> int:
     log = None if args.quiet else stderr_log
     models = parse_models(args.models) if args.models else None
     out = Path(args.out) if args.out else default_out(args.source)
-    _check_out(out, args.force)  # before the fit: a refusal should not cost minutes
+    whole = _whole(out, args.force)  # before the fit: a refusal should not cost minutes
     a = load_and_fit(args.source, models=models, loss=args.loss, starts=args.starts, samples=args.samples,
                      seed=args.seed, compare=args.compare, log=log, errors=args.errors)  # fmt: skip
-    with staged_dir(out) as tmp:
-        page = out / write_report(a, tmp, y_scale=args.y_scale, merl=args.merl, log=log).relative_to(tmp)
+    if not whole:
+        page = write_report(a, out, y_scale=args.y_scale, merl=args.merl, log=log)
+    else:
+        with staged_dir(out) as tmp:
+            page = out / write_report(a, tmp, y_scale=args.y_scale, merl=args.merl, log=log).relative_to(tmp)
     print(page)
     print(a.verdict())
     return EXIT_OK
