@@ -82,7 +82,9 @@ def _analyze(args: argparse.Namespace) -> int:
         page = write_report(a, out, y_scale=args.y_scale, merl=args.merl, log=log)
     else:
         with staged_dir(out) as tmp:
-            page = out / write_report(a, tmp, y_scale=args.y_scale, merl=args.merl, log=log).relative_to(tmp)
+            # The progress lines name where the files will be, not the temporary directory they are written in.
+            shown = None if log is None else (lambda line: stderr_log(line.replace(str(tmp), str(out))))
+            page = out / write_report(a, tmp, y_scale=args.y_scale, merl=args.merl, log=shown).relative_to(tmp)
     print(page)
     print(a.verdict())
     return EXIT_OK
