@@ -86,13 +86,12 @@ def _rig(args: argparse.Namespace) -> int:
     from rig.run.config import load_rig, rig_config
     from rig.run.config_schema import RigFile
     from simulator.camera.simulated import SimulatedCamera
-    from simulator.from_config import spec_from
-    from simulator.rig import SimulatedRig
+    from simulator.from_config import rig_from, spec_from
 
     cfg = load_rig(args.rig) if args.rig else rig_config(RigFile(), "<built-in simulated rig>")
     spec = replace(spec_from(cfg), time_scale=args.speed)
     frames = Path(args.frames)
-    with SimulatedRig(spec) as sim:
+    with rig_from(cfg, spec=spec) as sim:
         # A RAW twin of the rig's camera: same scene and clock, frames written as DNG for any RAW reader.
         raw = SimulatedCamera(
             lambda: sim.radiance_now(full_frame=True), noise=spec.noise, optics=spec.optics, kind="raw",
@@ -100,9 +99,11 @@ def _rig(args: argparse.Namespace) -> int:
         )  # fmt: skip
         _announce(sim.port)
         ids = ",".join(str(a.address) for a in sim.axes)
-        print(f"simulated rig {cfg.file.name!r}: servos {ids} ({', '.join(a.name for a in sim.axes)}) at "
-              f"{spec.baudrate} baud, time x{args.speed:g}; type 'capture SECONDS' for a DNG frame in {frames}, "
-              "Ctrl-D or Ctrl-C stops", file=sys.stderr, flush=True)  # fmt: skip
+        what = (f"GRBL 1.1h axes {ids}" if cfg.file.simulation.link == "grbl"
+                else f"servos {ids}") + f" ({', '.join(a.name for a in sim.axes)})"  # fmt: skip
+        line = "115200 baud (home with $H first)" if cfg.file.simulation.link == "grbl" else f"{spec.baudrate} baud"
+        print(f"simulated rig {cfg.file.name!r}: {what} at {line}, time x{args.speed:g}; type 'capture SECONDS' "
+              f"for a DNG frame in {frames}, Ctrl-D or Ctrl-C stops", file=sys.stderr, flush=True)  # fmt: skip
         for line in sys.stdin:
             words = line.split()
             if len(words) == 2 and words[0] == "capture":

@@ -72,7 +72,9 @@ class Pair:
     @cached_property
     def cos_h(self) -> Array:
         """Cosine of the half vector's zenith angle, (..., 1)."""
-        return self.h[..., 2:3]
+        # At most 1: where |wi + wo|^2 underflows (nearly opposite grazing directions in float32), h is
+        # not unit and its z reached 2, which made D infinite.
+        return np.minimum(self.h[..., 2:3], 1.0)
 
     @cached_property
     def cos_d(self) -> Array:

@@ -150,6 +150,7 @@ def _pair(
     sx, sy, sz = ix + ox, iy + oy, ci + co
     norm = math.sqrt(sx * sx + sy * sy + sz * sz)
     ch = sz / (floor if norm < floor else norm)
+    ch = one if ch > one else ch  # as Pair.cos_h: h is not unit where norm underflowed
     cd = half * norm  # wi . h = |wi + wo| / 2, as Pair.cos_d
     cd = zero if cd < zero else (one if cd > one else cd)
     spec = _specular(ci, co, ch, kc, mp, dist, mask)

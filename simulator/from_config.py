@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 from acquisition.noise import SensorNoise
 from rig.run.config import ConfigError, RigConfig, material_from
 from simulator.camera.pixels import PixelResponse
+from simulator.grbl_rig import SimulatedGrblRig
 from simulator.render.spec import CameraSpec, LightSpec
-from simulator.rig import SimRigSpec
+from simulator.rig import SimRigSpec, SimulatedRig
 
 
 def spec_from(rig: RigConfig) -> SimRigSpec:
@@ -41,3 +44,14 @@ def spec_from(rig: RigConfig) -> SimRigSpec:
         camera_output=sim.camera_output,
         response=response,
     )
+
+
+def rig_from(
+    rig: RigConfig, *, spec: SimRigSpec | None = None, start: Mapping[str, float] | None = None
+) -> SimulatedRig:
+    """The (unstarted) simulated rig of a rig file, on the link its ``[simulation] link`` names.
+
+    ``spec`` replaces ``spec_from(rig)`` (a test's variation of it); ``start`` is where the axes stand (degrees).
+    """
+    cls = SimulatedGrblRig if rig.file.simulation.link == "grbl" else SimulatedRig
+    return cls(spec if spec is not None else spec_from(rig), start=start)

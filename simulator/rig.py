@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import tempfile
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -116,8 +117,12 @@ class SimRigSpec:
 class SimulatedRig:
     """A running simulated rig; see the module docstring."""
 
-    def __init__(self, spec: SimRigSpec | None = None) -> None:
+    def __init__(self, spec: SimRigSpec | None = None, *, start: Mapping[str, float] | None = None) -> None:
         self.spec = spec or SimRigSpec()
+        self._start = dict(start or {})
+        unknown = sorted(set(self._start) - set(self.spec.geometry.joint_names))
+        if unknown:
+            raise SimulatedRigError(f"start pose names joints {unknown} the {self.spec.geometry.layout} rig lacks")
         self.axes = self.spec.resolved_axes()
         self.clock: Clock = ManualClock() if self.spec.time_scale is None else ScaledClock(self.spec.time_scale)
         self.material: MitsubaMaterial = to_mitsuba(self.spec.material)
@@ -141,12 +146,7 @@ class SimulatedRig:
                     f"a simulated rig is already running in this process (bus on {_active[0].port}); "
                     "close it first"
                 )
-            ids = [int(a.address) for a in self.axes]
-            # Servos start with the joints at 0 deg, the rig's rest pose.
-            positions = {int(a.address): round(a.to_units(min(max(0.0, a.min_deg), a.max_deg))) for a in self.axes}
-            bus = VirtualDynamixelBus(ids, self.spec.baudrate, self.clock, seed=self.spec.seed, positions=positions)
-            bus.start()
-            self.bus = bus
+            self._start_axes()
             dng_dir = self.spec.dng_dir
             if self.spec.camera_output == "dng" and dng_dir is None:
                 self._dng_tmp = tempfile.TemporaryDirectory(prefix="gonio-sim-dng-")
@@ -160,6 +160,25 @@ class SimulatedRig:
             )  # fmt: skip
             _active.append(self)
         return self
+
+    def start_pose(self) -> dict[str, float]:
+        """Joint angles (degrees) the axes stand at when the rig starts: the rest pose (0), or ``start``."""
+        return {a.name: self._start.get(a.name, min(max(0.0, a.min_deg), a.max_deg)) for a in self.axes}
+
+    def _start_axes(self) -> None:
+        """Bring up what moves the joints: one virtual servo per joint, at ``start_pose()``."""
+        ids = [int(a.address) for a in self.axes]
+        at = self.start_pose()
+        positions = {int(a.address): round(a.to_units(at[a.name])) for a in self.axes}
+        bus = VirtualDynamixelBus(ids, self.spec.baudrate, self.clock, seed=self.spec.seed, positions=positions)
+        bus.start()
+        self.bus = bus
+
+    def physical_units(self, axis: Axis) -> float:
+        """Where ``axis``'s joint physically stands now, in device units (servo ticks, backlash included)."""
+        if self.bus is None:
+            raise SimulatedRigError("the simulated rig is not running")
+        return self.bus.servo(int(axis.address)).physical_position_ticks()
 
     def __enter__(self) -> SimulatedRig:
         return self.start()
@@ -196,10 +215,7 @@ class SimulatedRig:
 
     def joints_now(self) -> Joints:
         """Joint angles in degrees the servos physically hold now (backlash included)."""
-        if self.bus is None:
-            raise SimulatedRigError("the simulated rig is not running")
-        values = {a.name: a.to_degrees(self.bus.servo(int(a.address)).physical_position_ticks()) for a in self.axes}
-        return Joints.from_dict(values)
+        return Joints.from_dict({a.name: a.to_degrees(self.physical_units(a)) for a in self.axes})
 
     def show(self, reference: bool, reading: int | None = None) -> None:
         """Put the reference tile (True) or the sample (False) in view of the camera.
@@ -216,8 +232,7 @@ class SimulatedRig:
             self._showing, self._shown = self.spec.material, self.material
 
     def _state_key(self) -> tuple[object, ...]:
-        assert self.bus is not None
-        ticks = tuple(round(self.bus.servo(int(a.address)).physical_position_ticks(), 3) for a in self.axes)
+        ticks = tuple(round(self.physical_units(a), 3) for a in self.axes)
         key: tuple[object, ...] = (ticks, repr(self._showing))
         if self.flat_source.state != "off":
             key = (*key, self.flat_source.state)

@@ -11,20 +11,46 @@ import numpy as np
 
 from acquisition.frame import Camera, ExposureSettings, Frame
 from model.geometry import degrees_to_vector
+from rig.instrument.links.base import MotionLink
 from rig.run.config import RigConfig, SweepConfig, material_from, parse, rig_config, sweep_config
 from rig.run.config_schema import RigFile, SweepFile
+from rig.run.hardware import dynamixel_options
 from rig.run.store import RunStore
+from simulator.grbl_rig import SimulatedGrblRig
+from simulator.rig import SimulatedRig
 
 LAMBERT = {"model": "Lambert", "rho_d": 0.5}
 GOLD = {"model": "CookTorrance", "alpha": 0.3, "eta": [0.18, 0.42, 1.37], "k": [3.42, 2.35, 1.77]}
 
 
-def sim_rig(material: dict[str, Any] | None = None, **tables: Any) -> RigConfig:
-    """A simulated-rig config with a material and extra tables merged in."""
-    doc: dict[str, Any] = {"simulation": {"material": material or LAMBERT, "seed": 3}, "reference": {"every": 6}}
+#: What can move the simulated rig's joints (``[simulation] link``): every runner test runs on both.
+LINKS = ("dynamixel", "grbl")
+
+
+def sim_rig(material: dict[str, Any] | None = None, *, on: str = "dynamixel", **tables: Any) -> RigConfig:
+    """A simulated-rig config on link ``on`` (``[simulation] link``) with a material and extra tables merged in."""
+    simulation = {"material": material or LAMBERT, "seed": 3, "link": on}
+    doc: dict[str, Any] = {"simulation": simulation, "reference": {"every": 6}}
     for key, value in tables.items():
         doc[key] = {**doc.get(key, {}), **value}
     return rig_config(parse(doc, RigFile, "test-rig.toml"), "test-rig.toml")
+
+
+def open_link(sim: SimulatedRig, rig: RigConfig) -> MotionLink:
+    """The link a run on ``sim`` uses, opened as the simulated backend opens it."""
+    if isinstance(sim, SimulatedGrblRig):
+        return sim.open_link()
+    return sim.open_link(dynamixel_options(rig))
+
+
+def left_safe(sim: SimulatedRig) -> bool:
+    """Whether a stopped run left the rig safe: servos without torque, or a GRBL at rest with nothing queued."""
+    if isinstance(sim, SimulatedGrblRig):
+        c = sim.controller
+        return c.state in ("Idle", "Alarm") and c.planner_blocks == 0
+    assert sim.bus is not None
+    torque = [sim.bus.servo(int(a.address)).torque_enabled for a in sim.axes]
+    return bool(torque) and not any(torque)
 
 
 def in_plane_sweep(theta_i: list[float], theta_o: list[float], **capture: Any) -> SweepConfig:

@@ -68,6 +68,9 @@ HOW: dict[str, tuple[str, str]] = {
     ".venv/bin/gonio sim servos --ids 1-4 --baud 1000000": ("serve", ""),
     ".venv/bin/gonio sim grbl --axes XYZ": ("serve", ""),
     ".venv/bin/gonio sim rig --rig examples/rig_simulated.toml": ("serve", ""),
+    ".venv/bin/gonio sim rig --rig examples/rig_simulated_grbl.toml": ("serve", ""),
+    ".venv/bin/gonio run examples/sweep_in_plane.toml --rig examples/rig_simulated_grbl.toml --out runs/gold-grbl":
+        ("run", ""),
 }  # fmt: skip
 
 

@@ -44,11 +44,30 @@ class ManualClock:
 
     ``sleep`` advances the time instantly instead of blocking, so a poll loop with a 10 ms interval
     moves the simulation forward 10 ms per poll at the speed of the bus round trip.
+
+    Settling. A virtual device served from its own thread (a servo bus, a GRBL on a pty) reads what a client
+    wrote whenever that thread gets to run. If time moved on first, a command sent at t would act at a later t:
+    the simulation would then depend on thread scheduling, i.e. on the machine's speed and load. A device
+    therefore registers a settler (``add_settler``), which ``advance`` calls first: it returns once the device
+    has handled every byte written to it, so whatever a client sent before time moves acts when it was sent.
     """
 
     def __init__(self, start_s: float = 0.0) -> None:
         self._t = float(start_s)
         self._lock = threading.Lock()
+        self._settlers: list[Callable[[], None]] = []
+
+    def add_settler(self, settle: Callable[[], None]) -> Callable[[], None]:
+        """Call ``settle()`` before every advance of time (see the class docstring); returns its remover."""
+        with self._lock:
+            self._settlers.append(settle)
+
+        def remove() -> None:
+            with self._lock:
+                if settle in self._settlers:
+                    self._settlers.remove(settle)
+
+        return remove
 
     def now(self) -> float:
         """Current simulated time in seconds."""
@@ -63,6 +82,10 @@ class ManualClock:
         """Move simulated time forward by ``seconds`` (negative values are refused)."""
         if seconds < 0:
             raise ValueError(f"ManualClock.advance({seconds!r}): time cannot run backwards")
+        with self._lock:
+            settlers = list(self._settlers)
+        for settle in settlers:
+            settle()
         with self._lock:
             self._t += seconds
 

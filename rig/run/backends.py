@@ -20,9 +20,10 @@ libraries inside ``open``, so that reading a rig file stays quick.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Mapping
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
+from typing import Protocol
 
 from acquisition.frame import Camera
 from rig.instrument.clock import Clock
@@ -31,6 +32,9 @@ from rig.run import registry
 from rig.run.config import RigConfig
 from rig.run.flat_source import FlatSource
 from rig.run.reference import ReferenceTarget
+
+#: Joint angles in degrees a simulated rig starts at (a resumed run's last pose), by joint name.
+StartPose = Mapping[str, float]
 
 
 @dataclass
@@ -45,15 +49,25 @@ class Instruments:
     flat_source: FlatSource | None = None
 
 
+class OpenInstruments(Protocol):
+    """How a backend opens a rig file's instruments: ``open(rig, start=None)``."""
+
+    def __call__(self, rig: RigConfig, start: StartPose | None = None) -> AbstractContextManager[Instruments]:
+        """A context manager yielding the run's instruments and closing what it opened."""
+        ...
+
+
 @dataclass(frozen=True)
 class RigBackend(registry.BackendTraits):
     """A registered rig backend: its traits (:class:`rig.run.registry.BackendTraits`) and how it opens.
 
-    ``open(rig)`` returns a context manager that yields the run's :class:`Instruments` and closes what it
-    opened (the runner shuts the link down itself).
+    ``open(rig, start=None)`` returns a context manager that yields the run's :class:`Instruments` and
+    closes what it opened (the runner shuts the link down itself). ``start`` (joint angles in degrees) is
+    where a resumed run's journal says the axes stood when it stopped: real hardware stands wherever it
+    stands and ignores it; a simulation starts its axes there, as a rig that stayed put would.
     """
 
-    open: Callable[[RigConfig], AbstractContextManager[Instruments]] = field(kw_only=True)
+    open: OpenInstruments = field(kw_only=True)
 
 
 def backend(name: str) -> RigBackend:

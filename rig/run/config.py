@@ -13,7 +13,7 @@ import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -155,6 +155,44 @@ def default_axes(geometry: RigGeometry, first_id: int = 1) -> tuple[Axis, ...]:
     return tuple(axes)
 
 
+#: The homing pull-off ($27) of the default GRBL axes, motor degrees: a homed axis stands this far off its switch.
+GRBL_PULLOFF_DEG = 1.0
+#: Steps per motor degree of the default GRBL axes: a 200-step motor at 16 microsteps, 3200 steps a turn.
+GRBL_STEPS_PER_DEGREE = 3200 / 360
+
+
+def grbl_homing(name: str, lo: float, hi: float, gear_ratio: float = 1.0) -> tuple[Literal[1, -1], float]:
+    """(direction, zero_offset_deg) that put joint ``name``'s homing switch (GRBL's machine 0) at one end of [lo, hi].
+
+    The camera arm homes to its lower limit, every other joint to its upper one, so homing moves the light and
+    camera arms apart (a plan keeps the light above the camera). The switch is one pull-off beyond the
+    limit, so a homed joint stands at the limit and every pose maps into GRBL's machine space [-$130, 0].
+    """
+    beyond = GRBL_PULLOFF_DEG / gear_ratio
+    return (-1, lo - beyond) if name == "camera" else (1, hi + beyond)
+
+
+def default_grbl_axes(geometry: RigGeometry) -> tuple[Axis, ...]:
+    """One stepper per joint on GRBL axes X, Y, Z, A (in joint order), direct drive, homing as ``grbl_homing``.
+
+    Where homing would bring the arms round the back within ``min_separation_deg`` of each other (arm limits
+    of +-180 deg), the light's upper and the camera's lower limit are pulled in until it cannot.
+    """
+    limits = {name: geometry.limits.of(name) for name in geometry.joint_names}
+    if "camera" in limits:
+        (l_lo, l_hi), (c_lo, c_hi) = limits["light"], limits["camera"]
+        excess = (l_hi - c_lo) - (360.0 - geometry.min_separation_deg - 2.0)
+        if excess > 0:
+            limits["light"], limits["camera"] = (l_lo, l_hi - excess / 2), (c_lo + excess / 2, c_hi)
+    axes = []
+    for letter, name in zip("XYZABC", geometry.joint_names, strict=False):
+        lo, hi = limits[name]
+        direction, zero = grbl_homing(name, lo, hi)
+        axes.append(Axis(name=name, address=letter, units_per_degree=GRBL_STEPS_PER_DEGREE, direction=direction,
+                         zero_offset_deg=zero, min_deg=lo, max_deg=hi, tolerance_deg=0.2))  # fmt: skip
+    return tuple(axes)
+
+
 @dataclass(frozen=True)
 class RigConfig:
     """A validated rig file: the parsed tables, the geometry and the axes built from them."""
@@ -193,9 +231,9 @@ def _axes(path: Path, cfg: RigFile, geometry: RigGeometry) -> tuple[Axis, ...]:
             f"{path}: axes.{unknown[0]}: no such joint in layout {geometry.layout!r}; "
             f"expected one of {', '.join(joints)}{_did_you_mean(unknown[0], list(joints))}"
         )
-    defaults = {a.name: a for a in default_axes(geometry)}
-    traits = registry.load(cfg.link.kind)
+    traits = registry.load(cfg.link.kind).for_file(cfg)
     letters = traits.addressing == "letter"
+    defaults = {a.name: a for a in (default_grbl_axes(geometry) if letters else default_axes(geometry))}
     out = []
     for name in joints:
         table = cfg.axes.get(name)
@@ -209,7 +247,15 @@ def _axes(path: Path, cfg: RigFile, geometry: RigGeometry) -> tuple[Axis, ...]:
         if not letters and table.id is None:
             raise ConfigError(f"{path}: axes.{name}.letter = {table.letter!r}: expected id (a Dynamixel id 0..252)")
         lo, hi = geometry.limits.of(name)
-        upd = table.units_per_degree
+        upd, direction, zero = table.units_per_degree, table.direction, table.zero_offset_deg
+        simulated = letters and traits.default_axes  # a simulated controller: what a table leaves out is the default's
+        if simulated:
+            d = defaults[name]
+            lo, hi, upd = d.min_deg, d.max_deg, (d.units_per_degree if upd is None else upd)
+        lo = lo if table.min_deg is None else table.min_deg
+        hi = hi if table.max_deg is None else table.max_deg
+        if simulated and not {"direction", "zero_offset_deg"} & table.model_fields_set:
+            direction, zero = grbl_homing(name, lo, hi, table.gear_ratio)
         if upd is None:
             if letters:
                 raise ConfigError(
@@ -219,9 +265,8 @@ def _axes(path: Path, cfg: RigFile, geometry: RigGeometry) -> tuple[Axis, ...]:
         try:
             out.append(Axis(
                 name=name, address=table.id if table.id is not None else str(table.letter), units_per_degree=upd,
-                gear_ratio=table.gear_ratio, direction=table.direction, zero_offset_deg=table.zero_offset_deg,
-                min_deg=lo if table.min_deg is None else table.min_deg,
-                max_deg=hi if table.max_deg is None else table.max_deg,
+                gear_ratio=table.gear_ratio, direction=direction, zero_offset_deg=zero,
+                min_deg=lo, max_deg=hi,
                 max_speed_deg_s=table.max_speed_deg_s, max_accel_deg_s2=table.max_accel_deg_s2,
                 tolerance_deg=table.tolerance_deg,
             ))  # fmt: skip
@@ -254,7 +299,7 @@ def rig_config(cfg: RigFile, path: str | Path = "<default rig>") -> RigConfig:
         if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
             where = f" inside {w}x{h} pixels" if cam.backend == "simulated" else " with x0 < x1 and y0 < y1"
             raise ConfigError(f"{p}: camera.roi = {list(cam.roi)!r}: expected a box (x0, y0, x1, y1){where}")
-    traits = registry.load(cfg.link.kind)
+    traits = registry.load(cfg.link.kind).for_file(cfg)
     if traits.cameras and cam.backend not in traits.cameras:
         raise ConfigError(f"{p}: camera.backend = {cam.backend!r}: a {cfg.link.kind} link needs the "
                           f"{registry.listing(traits.cameras)} camera")  # fmt: skip

@@ -324,6 +324,9 @@ class Simulation(Strict):
 
     ``camera_output``: "linear" frames, "raw" CFA mosaics, or "dng": mosaics written as DNG files and read back
     through rawpy, the path of a real camera's RAW files.
+
+    ``link``: what moves the simulated joints: "dynamixel" (virtual XM430 servos, ``[axes.*] id``) or "grbl" (a
+    virtual GRBL 1.1 controller, ``[axes.*] letter``, coordinated moves, homed before a run moves).
     """
 
     material: Material = Material()
@@ -334,6 +337,7 @@ class Simulation(Strict):
     time_scale: Pos | None = None
     fixed_pattern_dn: NonNeg = 0.0
     seed: Annotated[int, Field(ge=0)] = 0
+    link: Literal["dynamixel", "grbl"] = "dynamixel"
 
 
 class RigFile(Strict):

@@ -16,7 +16,7 @@ from rig.instrument.clock import Clock, SystemClock
 from rig.instrument.links.base import MotionLink
 from rig.instrument.links.dynamixel import DynamixelOptions
 from rig.run import registry
-from rig.run.backends import Instruments, RigBackend
+from rig.run.backends import Instruments, RigBackend, StartPose
 from rig.run.bounded_camera import BoundedCamera
 from rig.run.config import ConfigError, RigConfig
 from rig.run.flat_source import ManualFlatSource
@@ -67,12 +67,13 @@ def _instruments(rig: RigConfig, link: MotionLink, clock: Clock) -> Iterator[Ins
         camera.close()
 
 
-def _open_dynamixel(rig: RigConfig) -> contextlib.AbstractContextManager[Instruments]:
+def _open_dynamixel(rig: RigConfig, start: StartPose | None = None) -> contextlib.AbstractContextManager[Instruments]:
+    # Real axes stand wherever they stand: ``start`` is for simulations.
     clock = SystemClock()
     return _instruments(rig, _dynamixel_link(rig, clock), clock)
 
 
-def _open_grbl(rig: RigConfig) -> contextlib.AbstractContextManager[Instruments]:
+def _open_grbl(rig: RigConfig, start: StartPose | None = None) -> contextlib.AbstractContextManager[Instruments]:
     clock = SystemClock()
     return _instruments(rig, _grbl_link(rig, clock), clock)
 

@@ -2,9 +2,10 @@
 
 The plan checks every move from the pose before it; at run time the arms may stand elsewhere (a resumed run
 starts wherever the last one stopped, a stop may have left a move half done). Before each move the guard
-reads the joints back, checks the swept path from there with the plan's own check
-(:class:`rig.run.plan_paths.ArmPaths`), splits it into safe legs where needed, and refuses (``UnsafeMove``,
-a hardware stop) a target the plan never checked or a move no split makes safe.
+reads the joints back (a link that must first find its position, GRBL after a reset, homes before that),
+checks the swept path from there with the plan's own check (:class:`rig.run.plan_paths.ArmPaths`), splits it
+into safe legs where needed, and refuses (``UnsafeMove``, a hardware stop) a target the plan never checked
+or a move no split makes safe.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 
 from rig.instrument.kinematics import Joints
-from rig.instrument.links.base import LinkError, MotionLink
+from rig.instrument.links.base import HomingLink, LinkError, MotionLink
 from rig.run.plan_paths import ArmPaths
 
 
@@ -42,6 +43,8 @@ class MotionGuard:
         row = np.array([float(target[n]) for n in self._names])
         if _key(row) not in self._allowed:
             raise UnsafeMove(f"refused a move to {dict(target)}: not a pose the plan checked")
+        if isinstance(link, HomingLink):
+            link.ensure_position_known()  # a read-back is only "where the arms are" once the controller knows
         here = link.read_positions()
         src = np.array([float(here[n]) for n in self._names])
         legs = self.paths.legs(src, row)

@@ -12,7 +12,7 @@ import functools
 from collections.abc import Iterable
 from dataclasses import dataclass
 from importlib.metadata import EntryPoint, entry_points
-from typing import Literal
+from typing import Any, Literal
 
 GROUP = "gonio.backends"
 #: gonio's own backends, in the order error messages list them (others follow alphabetically).
@@ -44,6 +44,13 @@ class BackendTraits:
     default_axes: bool = False
     cameras: tuple[str, ...] = ()
     references: tuple[str, ...] = ()
+
+    def for_file(self, file: Any) -> BackendTraits:
+        """The traits that hold for one rig file (a ``RigFile``): these, unless the backend's files choose.
+
+        A backend whose rig files pick their link (the simulated rig's ``[simulation] link``) overrides this.
+        """
+        return self
 
 
 def ordered(names: Iterable[str]) -> tuple[str, ...]:

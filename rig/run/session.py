@@ -18,7 +18,7 @@ from typing import Any
 from acquisition.exposure.spec import CameraTiming
 from rig.instrument.kinematics import inverse, require
 from rig.instrument.kinematics_types import UnreachableError
-from rig.run.backends import Instruments, backend
+from rig.run.backends import Instruments, StartPose, backend
 from rig.run.calibrate import camera_flat_field, camera_noise
 from rig.run.config import ConfigError, RigConfig, SweepConfig, parse, rig_config, sweep_config
 from rig.run.config_schema import RigFile, SweepFile
@@ -83,13 +83,21 @@ def make_plan(rig: RigConfig, sweep: SweepConfig) -> Plan:
         exposure_s_per_point=per_point, reference_every=ref.every if ref else 0,
         reference_s=per_point if ref else 0.0, reference_joints=ref.joints if ref else None,
         order=sweep.file.sweep.order, isotropic=sweep.file.sweep.isotropic,
-        coordinated=backend(rig.file.link.kind).coordinated,
+        coordinated=backend(rig.file.link.kind).for_file(rig.file).coordinated,
     )  # fmt: skip
 
 
-def instruments(rig: RigConfig) -> contextlib.AbstractContextManager[Instruments]:
-    """Open the rig's link, camera and reference for the length of a run through its registered backend."""
-    return backend(rig.file.link.kind).open(rig)
+def instruments(rig: RigConfig, start: StartPose | None = None) -> contextlib.AbstractContextManager[Instruments]:
+    """Open the rig's link, camera and reference for a run through its registered backend (see RigBackend)."""
+    return backend(rig.file.link.kind).open(rig, start=start)
+
+
+def last_pose(store: RunStore) -> StartPose | None:
+    """The joints (degrees) of the journal's last point or reference reading, where a resumed rig stands."""
+    for record in reversed(store.records()):
+        if record.get("kind") in ("point", "reference") and "joints_deg" in record:
+            return {k: float(v) for k, v in record["joints_deg"].items()}
+    return None
 
 
 def manifest(rig: RigConfig, sweep: SweepConfig, plan: Plan, run_options: RunOptions) -> dict[str, Any]:
@@ -116,7 +124,7 @@ def options_for(rig: RigConfig, sweep: SweepConfig, progress: bool) -> RunOption
 
 
 def _run(store: RunStore, rig: RigConfig, sweep: SweepConfig, plan: Plan, progress: bool) -> RunSummary:
-    with instruments(rig) as inst:
+    with instruments(rig, start=last_pose(store)) as inst:
         runner = Runner(
             plan, store, inst.link, inst.camera, inst.clock, rig.geometry, capture_settings(rig, sweep),
             reference=reference_settings(rig) if inst.target is not None else None, target=inst.target,

@@ -15,6 +15,9 @@ Timing with a ``ManualClock``: packets run in the order they arrive, but a packe
 (broadcast WRITE or ACTION, SYNC/BULK WRITE, any TxOnly call) returns to the client before the bus has
 necessarily seen it. Do one round trip (a PING) before advancing the clock, or the move may start late.
 The SDK also leaves the status packets of unicast ACTION and TxOnly writes unread in its input buffer.
+On a clock that settles (``ManualClock.add_settler``) the bus registers itself: time cannot move on while
+bytes a client wrote wait unhandled, so every packet acts at the simulated time it was sent, however late the
+serving thread runs on a loaded host (``pause`` holds the thread, to test exactly that).
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import termios
 import threading
 import time
 import tty
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 
 from rig.instrument.clock import Clock, SystemClock
@@ -50,6 +53,8 @@ _TERMIOS_SPEEDS = {
 }
 _POLL_S = 0.05
 _WRITE_TIMEOUT_S = 0.5
+#: Wall seconds a settling clock waits for the serving thread before moving on regardless (a dead thread).
+_SETTLE_TIMEOUT_S = 60.0
 
 
 @dataclass
@@ -124,6 +129,13 @@ class VirtualDynamixelBus:
         self._parser = PacketParser()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._idle = threading.Condition()
+        self._handling = False  # the serving thread has input in hand (read or about to be)
+        self._running = threading.Event()  # cleared by pause(): the thread holds before reading
+        self._running.set()
+        self._unsettle: Callable[[], None] | None = None
+        #: Clock advances now waiting for this bus to handle what it was sent (for tests of a paused bus).
+        self.settling = 0
         self._master = -1
         self._slave = -1
         self._wake_r = self._wake_w = -1
@@ -143,11 +155,18 @@ class VirtualDynamixelBus:
         self._stop.clear()
         self._thread = threading.Thread(target=self._serve, name=f"virtual-dynamixel {self.port}", daemon=True)
         self._thread.start()
+        add_settler = getattr(self.clock, "add_settler", None)
+        if add_settler is not None:
+            self._unsettle = add_settler(self.settle)
         return self
 
     def close(self) -> None:
         """Stop the thread and close the pseudo-terminal (idempotent)."""
+        if self._unsettle is not None:
+            self._unsettle()
+            self._unsettle = None
         self._stop.set()
+        self._running.set()
         if self._wake_w >= 0:
             with contextlib.suppress(OSError):
                 os.write(self._wake_w, b"x")
@@ -219,6 +238,36 @@ class VirtualDynamixelBus:
                 if s.speaks_protocol_2 and (line is None or abs(line - s.baudrate) <= BAUD_TOLERANCE * s.baudrate)
             ]
 
+    # --- settling -------------------------------------------------------------------------------------
+
+    def pause(self) -> None:
+        """Hold the serving thread before it reads its next input: a host too busy to run it (for tests)."""
+        self._running.clear()
+
+    def resume(self) -> None:
+        """Let a paused serving thread go on."""
+        self._running.set()
+
+    def settle(self) -> None:
+        """Return once every byte written to the bus is handled (its replies written); see the module docstring."""
+        deadline = time.monotonic() + _SETTLE_TIMEOUT_S
+        with self._idle:
+            self.settling += 1
+            try:
+                while self.running and (self._handling or self._input_waiting()):
+                    left = deadline - time.monotonic()
+                    if left <= 0.0:
+                        return  # a thread that never gets there must not hang the simulation too
+                    self._idle.wait(min(left, _POLL_S))
+            finally:
+                self.settling -= 1
+
+    def _input_waiting(self) -> bool:
+        try:
+            return bool(select.select([self._master], [], [], 0)[0])
+        except (OSError, ValueError):
+            return False
+
     # --- serving --------------------------------------------------------------------------------------
 
     def _serve(self) -> None:
@@ -229,19 +278,30 @@ class VirtualDynamixelBus:
                 return  # fds closed under us: we are shutting down
             if self._wake_r in ready or self._master not in ready:
                 continue
+            with self._idle:
+                self._handling = True
             try:
-                data = os.read(self._master, 4096)
-            except BlockingIOError:
-                continue
-            except OSError as exc:
-                if exc.errno == errno.EIO:  # no slave open right now; we hold one, so only transiently
-                    self._stop.wait(_POLL_S)
-                    continue
-                raise
-            try:
-                self._handle_bytes(data)
-            except Exception as exc:  # keep serving; tests assert bus.errors is empty
-                self.errors.append(exc)
+                self._running.wait()
+                self._serve_input()
+            finally:
+                with self._idle:
+                    self._handling = False
+                    self._idle.notify_all()
+
+    def _serve_input(self) -> None:
+        try:
+            data = os.read(self._master, 4096)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            if exc.errno == errno.EIO:  # no slave open right now; we hold one, so only transiently
+                self._stop.wait(_POLL_S)
+                return
+            raise
+        try:
+            self._handle_bytes(data)
+        except Exception as exc:  # keep serving; tests assert bus.errors is empty
+            self.errors.append(exc)
 
     def _handle_bytes(self, data: bytes) -> None:
         frames = self._parser.feed(data)

@@ -27,6 +27,7 @@ does not).
 
 from __future__ import annotations
 
+from rig.instrument.clock import Clock
 from simulator.grbl.core import (
     ALARM,
     BUILD_DATE,
@@ -83,6 +84,23 @@ class VirtualGrbl(GrblCore):
             return dict(zip(self.axes, self._positions(), strict=True))
 
     @property
+    def clock(self) -> Clock:
+        """The clock the controller's motion runs on."""
+        return self._clock
+
+    @property
+    def physical_position(self) -> dict[str, float]:
+        """Where each axis physically stands (units, homed machine coordinates: the switch at 0), steps whole.
+
+        This is what the machine does, not what it reports: a power-up zeroes the report, never the axes.
+        """
+        with self._lock:
+            self._advance(self._clock.now())
+            steps = [self.settings.steps_per_unit(i) for i in range(len(self.axes))]
+            where = zip(self.axes, self._positions(), self._offset, steps, strict=True)
+            return {a: round((p + o) * n) / n for a, p, o, n in where}
+
+    @property
     def planner_blocks(self) -> int:
         """Blocks queued in the planner (including the one executing)."""
         with self._lock:
@@ -113,6 +131,11 @@ class VirtualGrbl(GrblCore):
         """Ignore the next ``count`` ``?`` queries (a noisy line or a busy controller)."""
         with self._lock:
             self._drop_reports += max(int(count), 0)
+
+    def delay_status_reports(self, count: int) -> None:
+        """Answer the next ``count`` ``?`` queries late, each just before the next query's report (a busy line)."""
+        with self._lock:
+            self._late_reports += max(int(count), 0)
 
     def open_door(self) -> None:
         """The safety door opens (same as the 0x84 real-time byte)."""

@@ -72,6 +72,8 @@ class GrblCore:
         self._trip_at: float | None = None
         self._homing_fault: int | None = None
         self._drop_reports = 0
+        self._late_reports = 0
+        self._held_report: str | None = None  # a late report, sent just before the next one
         self.rx_dropped = 0  # bytes lost to a full receive buffer
         self.lines_received = 0  # complete lines the main loop has taken in
         self.rx_peak = 0  # most bytes ever waiting in the receive buffer
@@ -153,8 +155,16 @@ class GrblCore:
         elif c == 0x3F:
             if self._drop_reports:
                 self._drop_reports -= 1
+                return
+            report = self._status_report()
+            if self._held_report is not None:
+                self._emit(self._held_report)
+                self._held_report = None
+            if self._late_reports:
+                self._late_reports -= 1
+                self._held_report = report
             else:
-                self._emit(self._status_report())
+                self._emit(report)
         elif self._critical:
             return
         elif c == 0x21:

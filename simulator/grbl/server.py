@@ -14,6 +14,9 @@ the port without flushing gets no banner until it sends 0x18. Output is dropped 
 
 Time comes from an injectable ``rig.instrument.clock.Clock``: share a ``ManualClock`` with the client in tests so
 polling advances the simulation, or use a ``ScaledClock`` to run faster than real time for an external program.
+On a clock that settles (``ManualClock.add_settler``) the server registers itself, so time cannot move on while
+bytes a client wrote wait unhandled: every line and real-time byte acts at the simulated time it was sent,
+however late the serving thread runs on a loaded host.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import select
 import struct
 import termios
 import threading
+import time
 import tty
 from collections.abc import Callable, Iterator, Mapping
 
@@ -39,6 +43,7 @@ __all__ = ["GrblPtyServer", "VirtualGrbl", "open_virtual_grbl", "serve_grbl"]
 
 _TIOCPKT_FLUSHREAD = 0x01
 _MAX_PENDING_OUTPUT = 1 << 16  # bytes kept for a client that stopped reading; older output is dropped
+_SETTLE_TIMEOUT_S = 60.0  # wall seconds a settling clock waits for the serving thread (a dead one) at most
 
 
 class GrblPtyServer:
@@ -64,6 +69,14 @@ class GrblPtyServer:
         self._hung_up = True
         self.opens = 0  # how many times a client opened the port (each one resets the controller)
         self.error: Exception | None = None  # what stopped the serving thread, if it crashed
+        self._idle = threading.Condition()
+        self._handling = False  # the serving thread has client input in hand
+        self._running = threading.Event()  # cleared by pause(): the thread holds before reading
+        self._running.set()
+        #: Clock advances now waiting for this server to handle what it was sent (for tests of a paused one).
+        self.settling = 0
+        add_settler = getattr(controller.clock, "add_settler", None)
+        self._unsettle: Callable[[], None] | None = add_settler(self.settle) if add_settler is not None else None
 
     def start(self) -> None:
         """Serve from a daemon thread."""
@@ -73,7 +86,11 @@ class GrblPtyServer:
 
     def stop(self) -> None:
         """Stop serving (within one tick) and close the pty."""
+        if self._unsettle is not None:
+            self._unsettle()
+            self._unsettle = None
         self._stop.set()
+        self._running.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5.0)
         if self._master >= 0:
@@ -101,11 +118,56 @@ class GrblPtyServer:
                 self._on_hangup()
                 self._stop.wait(self._tick_ms / 1000.0)  # POLLHUP stays set: do not spin
                 continue
-            if any(ev & (select.POLLIN | select.POLLPRI) for _, ev in events):
-                self._read()
-            self.controller.update()
-            self._queue_output(self.controller.read_output())
-            self._flush()
+            with self._idle:
+                self._handling = True
+            try:
+                if any(ev & (select.POLLIN | select.POLLPRI) for _, ev in events):
+                    self._running.wait()
+                    self._read()
+                self.controller.update()
+                self._queue_output(self.controller.read_output())
+                self._flush()
+            finally:
+                with self._idle:
+                    self._handling = False
+                    self._idle.notify_all()
+
+    def pause(self) -> None:
+        """Hold the serving thread before it reads its next input: a host too busy to run it (for tests)."""
+        self._running.clear()
+
+    def resume(self) -> None:
+        """Let a paused serving thread go on."""
+        self._running.set()
+
+    def settle(self) -> None:
+        """Return once every byte a client wrote is handled and answered; see the module docstring."""
+        deadline = time.monotonic() + _SETTLE_TIMEOUT_S
+        with self._idle:
+            self.settling += 1
+            try:
+                while self._alive() and (self._handling or self._input_waiting()):
+                    left = deadline - time.monotonic()
+                    if left <= 0.0:
+                        return  # a thread that never gets there must not hang the simulation too
+                    self._idle.wait(min(left, self._tick_ms / 1000.0))
+            finally:
+                self.settling -= 1
+
+    def _alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive() and not self._stop.is_set()
+
+    def _input_waiting(self) -> bool:
+        """Whether a client's bytes (or a port open) wait on the master; a hang-up is no input."""
+        if self._master < 0:
+            return False
+        poller = select.poll()
+        poller.register(self._master, select.POLLIN | select.POLLPRI)
+        try:
+            events = poller.poll(0)
+        except OSError:
+            return False
+        return any(ev & (select.POLLIN | select.POLLPRI) and not ev & select.POLLHUP for _, ev in events)
 
     def _on_hangup(self) -> None:
         self._hung_up = True

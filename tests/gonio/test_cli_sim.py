@@ -123,6 +123,42 @@ def test_sim_rig_serves_servos_and_writes_frames_of_the_pose_they_hold(tmp_path)
         proc.wait(timeout=120)
 
 
+@pytest.mark.mitsuba
+def test_sim_rig_on_grbl_homes_and_writes_frames_of_the_pose_the_steppers_hold(tmp_path) -> None:
+    from pathlib import Path
+
+    from acquisition.files.raw import read_raw
+    from rig.instrument.clock import SystemClock
+    from rig.instrument.kinematics import inverse, require
+    from rig.instrument.links.grbl import GrblLink
+    from rig.run.config import load_rig
+
+    rig_file = Path(__file__).resolve().parents[2] / "examples" / "rig_simulated_grbl.toml"
+    rig = load_rig(rig_file)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gonio.cli", "sim", "rig", "--rig", str(rig_file), "--frames", str(tmp_path),
+         "--speed", "20"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        port = _first_line(proc, timeout_s=300.0)
+        with GrblLink(port, rig.axes, clock=SystemClock(), require_home=True, reply_timeout_s=5.0) as link:
+            target = require(inverse(rig.geometry, 30.0, 0.0, 20.0, 180.0))
+            link.move_to({k: float(v) for k, v in target.as_dict().items()})  # homes first
+            held = link.wait_in_position(timeout_s=300.0)
+            assert abs(held["light"] - float(target.light)) < 0.2
+            assert proc.stdin is not None
+            proc.stdin.write("capture 0.02\n")
+            proc.stdin.flush()
+            frame = read_raw(_first_line(proc, timeout_s=300.0))
+        assert float(frame.data.mean()) > max(np.atleast_1d(frame.black_level)) + 10  # lit: the sample in view
+        proc.stdin.close()
+        assert proc.wait(timeout=120) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(timeout=120)
+
+
 @pytest.mark.slow
 def test_sim_merl_writes_the_documented_paint_or_the_rig_files_material(tmp_path, capsys):
     from gonio import cli

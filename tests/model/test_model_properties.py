@@ -96,3 +96,14 @@ def test_cook_torrance_sanity_at_extremes(alpha, fres, eta, k):
 def test_f0_extremes(f0):
     model = m.CookTorrance(alpha=0.3, fresnel="schlick", f0=f0)
     assert check_sanity(model).passed
+
+
+@pytest.mark.parametrize("distribution", ["blinn_phong", "ggx", "beckmann"])
+def test_opposite_grazing_directions_stay_finite_in_float32(distribution):
+    # Found by Hypothesis: |wi + wo|^2 underflows to 0 in float32, the half vector is not unit and its
+    # z reached 2, which made D infinite and the product NaN.
+    wi, wo = np.array([1.0, 0.0, 1e-30]), np.array([-1.0, 0.0, 1e-30])
+    model = m.CookTorrance(alpha=0.125, distribution=distribution, fresnel="conductor", eta=1.0, k=0.0)
+    for dtype in (np.float64, np.float32):
+        f = model.eval(wi.astype(dtype), wo.astype(dtype))
+        assert np.all(np.isfinite(f)) and np.all(f >= 0), (distribution, dtype, f)

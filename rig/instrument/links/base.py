@@ -44,3 +44,12 @@ class MotionLink(Protocol):
     def shutdown(self, keep_torque: bool = False) -> None:
         """Stop, leave the hardware safe (torque off / controller idle; ``keep_torque`` holds) and release the port."""
         ...
+
+
+@runtime_checkable
+class HomingLink(Protocol):
+    """A link whose controller can lose track of where its axes are (GRBL after a reset), and finds out by homing."""
+
+    def ensure_position_known(self) -> None:
+        """Home unless the position is known (or refuse, saying why, where the controller cannot home)."""
+        ...

@@ -40,6 +40,7 @@ log = logging.getLogger(__name__)
 RX_BUFFER_BYTES = 128
 _READ_SLICE_S = 0.01  # pyserial read timeout: the granularity of every wall-time wait
 _RESET = b"\x18"
+_UNPLUGGED = "is the cable or the controller unplugged?"
 # Alarms after which GRBL resets itself and prints its banner (3 and 6 are the result of a reset, not a cause).
 _RESET_FOLLOWS = frozenset({7, 8, 9, 10})
 
@@ -148,7 +149,12 @@ class GrblSession:
                 log.warning("GRBL on %s: error closing the port: %s", self.port, exc)
 
     def status(self) -> GrblStatus:
-        """Send ``?`` and handle every line up to the report; retries when a report goes missing."""
+        """Send ``?`` and handle every line up to the report; retries when a report goes missing.
+
+        Lines already waiting are handled first: a report that came after its query was given up on (and
+        asked again) must not pass for the answer to this one, or the link acts on where the axes were.
+        """
+        self._take_waiting()
         for _ in range(self._status_retries + 1):
             count = self._status_count
             self.write_realtime(b"?")
@@ -165,6 +171,11 @@ class GrblSession:
             f"GRBL on {self.port}: no status report to {tries} '?' ({self._reply_timeout_s:g} s each)"
         )
 
+    def _take_waiting(self) -> None:
+        """Handle every complete line already received, without waiting for more."""
+        while (line := self._read_line(0.0)) is not None:
+            self._handle(line)
+
     def write_realtime(self, data: bytes) -> None:
         """Send real-time bytes (``?``, ``!``, ``~``, 0x18), which bypass GRBL's line buffer."""
         if self._ser is None:
@@ -174,7 +185,7 @@ class GrblSession:
         except serial.SerialTimeoutException as exc:
             raise GrblTimeoutError(f"GRBL on {self.port}: write timed out ({exc})") from exc
         except (serial.SerialException, OSError) as exc:
-            raise GrblError(f"GRBL on {self.port}: write failed: {exc}") from exc
+            raise GrblError(f"GRBL on {self.port}: write failed: {exc}; {_UNPLUGGED}") from exc
 
     def send(self, line: str) -> int:
         """Queue ``line`` as soon as it fits in GRBL's receive buffer (character counting); its sequence number."""
@@ -324,7 +335,7 @@ class GrblSession:
                     return None
                 self._rx += self._ser.read(waiting or 1)  # blocks at most _READ_SLICE_S for the first byte
             except (serial.SerialException, OSError) as exc:
-                raise GrblError(f"GRBL on {self.port}: read failed: {exc}") from exc
+                raise GrblError(f"GRBL on {self.port}: read failed: {exc}; {_UNPLUGGED}") from exc
 
     def _handle(self, line: str) -> None:
         """Dispatch one line from GRBL; raises for ``error:N``, ``ALARM:N`` and unexpected resets."""

@@ -434,3 +434,17 @@ def test_without_homing_a_run_link_refuses_to_move_saying_why(clock):
             with pytest.raises(GrblError, match=r"position is not known .*homing is disabled \(\$22=0\)"):
                 link.move_to({"camera": -5.0})
             assert sim.controller.mpos == {"X": 0.0, "Y": 0.0, "Z": 0.0}  # nothing moved
+
+
+def test_a_late_status_report_is_never_taken_for_a_later_one(sim, clock):
+    # The controller answers one '?' only when asked again (a busy line): the link takes the late report, and
+    # the one that answers the repeated '?' arrives after it. It must not pass for the next report, taken later.
+    with connect(sim, clock, reply_timeout_s=0.2) as link:
+        link.move_to({"camera": 60.0})
+        sim.controller.delay_status_reports(1)
+        link.status()
+        clock.advance(0.5)
+        moving = link.status()
+        assert moving.state == "Run"
+        assert moving.machine_position(None)[1] == pytest.approx(sim.controller.mpos["Y"], abs=1e-3)
+        assert link.wait_in_position(30.0)["camera"] == pytest.approx(60.0, abs=0.05)

@@ -23,7 +23,7 @@ from acquisition.cameras.registry import CameraBackend
 from acquisition.frame import ExposureSettings, Frame
 from rig.instrument.clock import ManualClock
 from rig.run import registry
-from rig.run.backends import Instruments, RigBackend, backend
+from rig.run.backends import Instruments, RigBackend, StartPose, backend
 from rig.run.config import ConfigError, RigConfig, parse, rig_config
 from rig.run.config_schema import RigFile
 from rig.run.hardware import open_camera
@@ -34,13 +34,13 @@ HERE = __name__
 
 
 @contextlib.contextmanager
-def _open_lab_stage(rig: RigConfig) -> Iterator[Instruments]:
+def _open_lab_stage(rig: RigConfig, start: StartPose | None = None) -> Iterator[Instruments]:
     """A lab's stage: here the simulated rig under another name, opened through gonio's public pieces."""
     from simulator.backend import open_simulated
 
     link = rig.file.link.model_copy(update={"kind": "simulated"})
     as_simulated = dataclasses.replace(rig, file=rig.file.model_copy(update={"link": link}))
-    with open_simulated(as_simulated) as inst:
+    with open_simulated(as_simulated, start) as inst:
         opened.append(rig.file.link.kind)
         yield inst
 

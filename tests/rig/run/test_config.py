@@ -12,14 +12,33 @@ from hypothesis import strategies as st
 
 from rig.run.config import ConfigError, load_rig, load_sweep, material_from, parse, rig_config, sweep_config
 from rig.run.config_schema import RigFile, SweepFile
+from rig.run.session import make_plan
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 
 
-@pytest.mark.parametrize("name", ["rig_simulated.toml", "rig_dynamixel.toml"])
+@pytest.mark.parametrize("name", ["rig_simulated.toml", "rig_dynamixel.toml", "rig_simulated_grbl.toml"])
 def test_example_rigs_load(name: str) -> None:
     rig = load_rig(EXAMPLES / name)
     assert [a.name for a in rig.axes] == list(rig.geometry.joint_names)
+
+
+def test_a_simulated_grbl_rig_gets_lettered_steppers_homing_apart_and_coordinated_plans() -> None:
+    rig = load_rig(EXAMPLES / "rig_simulated_grbl.toml")
+    light, camera, tilt, roll = rig.axes
+    assert [a.address for a in rig.axes] == ["X", "Y", "Z", "A"]
+    assert light.units_per_degree == camera.units_per_degree == pytest.approx(3200 / 360)
+    # Switches one pull-off beyond the end each arm homes to: the light's top, the camera's bottom.
+    assert (light.direction, light.zero_offset_deg) == (1, light.max_deg + 1.0)
+    assert (camera.direction, camera.zero_offset_deg) == (-1, camera.min_deg - 1.0)
+    # The tilt table changed its gear: the switch moves with it (one motor degree is a third of a joint degree).
+    assert tilt.gear_ratio == 3.0 and tilt.zero_offset_deg == pytest.approx(tilt.max_deg + 1.0 / 3.0)
+    assert tilt.max_speed_deg_s == 30.0 and roll.max_speed_deg_s == 60.0
+    sweep = load_sweep(EXAMPLES / "sweep_in_plane.toml")
+    grbl, servos = make_plan(rig, sweep), make_plan(load_rig(EXAMPLES / "rig_simulated.toml"), sweep)
+    assert grbl.paths is not None and grbl.paths.coordinated  # straight G1 moves, timed and checked as such
+    assert servos.paths is not None and not servos.paths.coordinated
+    assert len(grbl.points) == len(servos.points)  # the same reachable points as the servo rig
 
 
 def test_rig_file_values_reach_the_objects() -> None:
@@ -54,6 +73,10 @@ RIG_MISTAKES = [
     ),
     ("[link]\nkind = 'dynamixel'\n", r"\[link\] a dynamixel link needs port"),
     ("[link]\nkind = 'can'\n", r"link\.kind = 'can': expected a value 'simulated', 'dynamixel' or 'grbl'"),
+    ("[simulation]\nlink = 'can'\n", r"simulation\.link = 'can': expected a value 'dynamixel' or 'grbl'"),
+    ("[simulation]\nlink = 'grbl'\n[axes.light]\nid = 1\n", r"axes\.light\.id = 1: expected letter \(a GRBL axis"),
+    ("[simulation]\nlink = 'grbl'\n[axes.light]\nletter = 'Y'\n", r"axes: address 'Y' is used by two joints"),
+    ("[axes.light]\nletter = 'X'\n", r"axes\.light\.letter = 'X': expected id \(a Dynamixel id"),
     ("[axes.light]\nid = 'one'\n", r"axes\.light\.id = 'one': expected a valid integer"),
     ("[axes.light]\nidd = 3\n", r"axes\.light\.idd = 3: unknown key; expected one of direction, gear_ratio, id,"),
     ("[axes.arm]\nid = 1\n", r"axes\.arm: no such joint in layout 'four_axis'; expected one of light, camera"),

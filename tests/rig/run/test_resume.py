@@ -1,4 +1,4 @@
-"""A run killed with SIGKILL and resumed ends with exactly the table of a run that was never interrupted."""
+"""A run killed with SIGKILL and resumed (on either link) ends with exactly the table of an uninterrupted run."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from gonio.cli import main
+from rig.instrument.links.grbl import GrblLink
 from rig.run.config import load_rig, load_sweep
 from rig.run.session import resume_run, start_run
 
@@ -20,6 +21,7 @@ pytestmark = pytest.mark.mitsuba
 RIG = """
 [simulation]
 seed = 11
+link = "{link}"
 [simulation.material]
 model = "CookTorrance"
 alpha = 0.25
@@ -38,9 +40,9 @@ target_snr = 150.0
 """
 
 
-def _files(tmp_path: Path) -> tuple[Path, Path]:
+def _files(tmp_path: Path, link: str = "dynamixel") -> tuple[Path, Path]:
     rig, sweep = tmp_path / "rig.toml", tmp_path / "sweep.toml"
-    rig.write_text(RIG)
+    rig.write_text(RIG.format(link=link))
     sweep.write_text(SWEEP)
     return rig, sweep
 
@@ -71,15 +73,32 @@ def _run_and_kill(rig: Path, sweep: Path, run: Path, after_records: int, resume:
     assert not (run / "status.json").exists(), "the run finished before the kill"
 
 
-def test_killed_twice_and_resumed_equals_uninterrupted(tmp_path: Path) -> None:
-    rig, sweep = _files(tmp_path)
+@pytest.mark.parametrize("link", ["dynamixel", "grbl"])
+def test_killed_twice_and_resumed_equals_uninterrupted(
+    tmp_path: Path, link: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    rig, sweep = _files(tmp_path, link)
     reference = start_run(load_rig(rig), load_sweep(sweep), tmp_path / "whole", progress=False)
     run = tmp_path / "killed"
     _run_and_kill(rig, sweep, run, after_records=3)
     _run_and_kill(rig, sweep, run, after_records=11, resume=True)
+    # A GRBL rig comes back where the journal left it, but its reopened port counts from 0 there: it must home.
+    homed: list[dict[str, float]] = []
+    home = GrblLink.home
+
+    def counted(link: GrblLink, timeout_s: float | None = None) -> None:
+        home(link, timeout_s)
+        homed.append(link.read_positions())
+
+    monkeypatch.setattr(GrblLink, "home", counted)
     resumed = resume_run(run, progress=False)
     assert resumed.already >= 9 and resumed.measured + resumed.already == 18  # 21 directions, 3 too close
     assert Path(resumed.table).read_bytes() == Path(reference.table).read_bytes()
+    if link == "grbl":  # homed once, before the first move, to the switches at the light's top, the camera's bottom
+        axes = {a.name: a for a in load_rig(rig).axes}
+        step = 1.0 / axes["light"].units_per_joint_degree  # the pull-off is a whole number of steps
+        assert len(homed) == 1 and homed[0]["light"] == pytest.approx(axes["light"].max_deg, abs=step)
+        assert homed[0]["camera"] == pytest.approx(axes["camera"].min_deg, abs=step)
 
 
 def test_resume_of_a_finished_run_measures_nothing_new(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
