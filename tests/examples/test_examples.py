@@ -30,7 +30,8 @@ CENTRE = X_SERIES.ticks_per_turn // 2
 
 def _comment_commands(path: Path) -> list[str]:
     comments = [line.split("#", 1)[1] for line in path.read_text().splitlines() if "#" in line]
-    return [c for text in comments for c in re.findall(r"`(gonio [^`]+)`", text)]
+    quoted = [c for text in comments for c in re.findall(r"`(gonio [^`]+)`", text)]
+    return quoted + [text.strip() for text in comments if text.strip().startswith("gonio ")]  # a command line
 
 
 def _settings(path: Path) -> dict[int, float]:
