@@ -1,4 +1,4 @@
-"""``gonio sim servos``, ``grbl`` and ``rig``: serve simulated hardware on a pty until Ctrl-C; ``sim merl``: a MERL file.
+"""``gonio sim servos|grbl|rig``: serve simulated hardware on a pty until Ctrl-C; ``gonio sim merl``: a MERL file.
 
 The simulator package is imported only when one of these commands runs (nothing in rig imports it at
 module level), so the controller never depends on the stand-in hardware.

@@ -164,8 +164,8 @@ def test_sim_merl_writes_the_documented_paint_or_the_rig_files_material(tmp_path
     from gonio import cli
     from gonio.cli_sim import PAINT
     from model import CookTorrance
-    from model.merl import bin_centers, read_merl
     from model.geometry import from_half_diff
+    from model.merl import bin_centers, read_merl
 
     out = tmp_path / "paint.binary"
     assert cli.main(["sim", "merl", "--out", str(out)]) == 0
