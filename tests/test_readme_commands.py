@@ -71,6 +71,13 @@ HOW: dict[str, tuple[str, str]] = {
     ".venv/bin/gonio run examples/sweep_in_plane.toml --rig examples/rig_simulated_grbl.toml --out runs/gold-grbl":
         ("run", ""),
 }  # fmt: skip
+#: Commands a branch not yet merged adds to the README (issue 17's geometry calibration): classified already,
+#: so the merge needs no edit here, and not stale while the README does not have them yet.
+PENDING = {".venv/bin/gonio calibrate geometry --rig examples/rig_misaligned.toml --out calib"}
+HOW[".venv/bin/gonio calibrate geometry --rig examples/rig_misaligned.toml --out calib"] = (
+    "dry",
+    "a ChArUco round of rendered HDR whole frames, minutes; issue 17's tests run the calibration",
+)
 
 
 def _blocks(lang: tuple[str, ...]) -> list[str]:
@@ -94,7 +101,7 @@ COMMANDS = readme_commands()
 def test_every_readme_command_is_classified_and_every_class_is_used():
     unknown = [c for c in COMMANDS if _key(c) not in HOW]
     assert not unknown, f"README commands without a class in {Path(__file__).name}: {unknown}"
-    stale = sorted(set(HOW) - {_key(c) for c in COMMANDS})
+    stale = sorted(set(HOW) - PENDING - {_key(c) for c in COMMANDS})
     assert not stale, f"classes for commands the README no longer has: {stale}"
     assert {how for how, _ in HOW.values()} == {"run", "serve", "dry", "never", "help"}
 
