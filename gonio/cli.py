@@ -5,16 +5,17 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import cast
 
 from gonio.cli_adaptive import add_adaptive_parser
 from gonio.cli_analyze import add_analyze_parser
 from gonio.cli_batch import add_batch_parser
 from gonio.cli_calibrate import add_calibrate_parser
-from gonio.cli_run import EXIT_BAD_INPUT, EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_OK, add_run_parsers
+from gonio.cli_errors import EXIT_CODES_HELP, GonioParser, quiet_broken_pipe, report, stdout_closed
+from gonio.cli_run import EXIT_OK, add_run_parsers
 from gonio.cli_servo import add_servo_parser
 from gonio.cli_sim import add_sim_parser
-from rig.instrument.links.base import LinkError
-from rig.run.store import RunStoreError
+from model.version import gonio_version
 
 
 def _models(args: argparse.Namespace) -> int:
@@ -29,13 +30,16 @@ def _models(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the gonio command and its subcommands."""
-    parser = argparse.ArgumentParser(
+    parser = GonioParser(
         prog="gonio",
         description="Drive, simulate and analyse a gonioreflectometer.",
-        epilog="Example: gonio demo --out out/demo. Exit codes: 0 ok, 2 bad input, 3 hardware fault, "
-        "4 camera fault, 130 interrupted.",
+        epilog=f"Example: gonio demo --out out/demo. {EXIT_CODES_HELP}",
     )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    parser.add_argument("--version", action="version", version=f"gonio {gonio_version()}")
+    parser.add_argument("--debug", action="store_true", help="print the whole traceback of any error")
+    # Every subcommand's parser is a GonioParser too (argparse makes them of the parent's class).
+    sub = cast("argparse._SubParsersAction[argparse.ArgumentParser]",
+               parser.add_subparsers(dest="command", required=True, metavar="COMMAND"))  # fmt: skip
     add_run_parsers(sub)
     models = sub.add_parser(
         "models",
@@ -60,16 +64,17 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args))
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except LinkError as exc:
-        print(f"gonio: hardware fault: {exc}", file=sys.stderr)
-        return EXIT_HARDWARE
-    except (ValueError, OSError, RunStoreError) as exc:
-        print(f"gonio: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        code = int(args.func(args))
+        sys.stdout.flush()  # here, not at exit, so that a closed pipe is met where it can be handled
+        return code
+    except BrokenPipeError as exc:
+        if stdout_closed():
+            return quiet_broken_pipe()
+        return report(exc, args.debug)
+    except (Exception, KeyboardInterrupt) as exc:
+        if isinstance(exc, OSError) and stdout_closed():
+            return quiet_broken_pipe()
+        return report(exc, args.debug)
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from gonio.cli_errors import CliError
 from gonio.cli_run import EXIT_OK, _rig, _sigterm_as_interrupt, _stopped
 
 
@@ -15,9 +16,12 @@ def _adaptive(args: argparse.Namespace) -> int:
     from rig.run.runner import RunStopped
 
     spec = None if args.model == "auto" else parse_models(args.model)[0]
-    settings = AdaptiveSettings(budget=args.budget, initial=args.initial, batch=args.batch,
-                                max_theta_deg=args.max_theta, target_snr=args.snr,
-                                reference_snr=args.reference_snr, seed=args.seed)  # fmt: skip
+    try:
+        settings = AdaptiveSettings(budget=args.budget, initial=args.initial, batch=args.batch,
+                                    max_theta_deg=args.max_theta, target_snr=args.snr,
+                                    reference_snr=args.reference_snr, seed=args.seed)  # fmt: skip
+    except ValueError as exc:  # the settings are the command line's options
+        raise CliError(str(exc)) from None
     rig = _rig(args.rig)
     print(f"adaptive sweep into {args.out}: {settings.budget} captures, model {args.model}", file=sys.stderr)
     try:

@@ -4,12 +4,22 @@ Progress lines go to stderr; stdout gets the path of index.html and a one-line v
 missing source, a directory that is not a run, a run with too few points, an unreadable MERL file, an
 unknown model name) raises analysis.result.AnalysisError, a ValueError, which ``gonio`` turns into exit code 2
 with the message naming the path.
+
+An existing analysis is not replaced without ``--force``: the command refuses (exit 2, before any fitting)
+and says what is there. Refusing rather than warning, because the command runs unattended in scripts where a
+warning scrolls by unread, and an earlier analysis may hold choices (models, loss, seed) worth comparing;
+``--force`` or another ``--out`` is one word away. The report is written into a temporary directory beside
+the target and swapped in whole, so an analysis that fails half-way leaves the previous one as it was (a
+directory holding other files, not an analysis, gets the report written into it, and keeps its files).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
+from gonio.cli_errors import CliError
 from gonio.cli_run import EXIT_OK
 
 _MODELS_HELP = ("lambert, lambert_ggx (dielectric), lambert_ggx_schlick, ggx_conductor, ggx_conductor_lambert, "
@@ -26,15 +36,55 @@ def _positive(text: str) -> int:
     return value
 
 
+def _whole(out: Path, force: bool) -> bool:
+    """Whether the report may replace ``out`` whole; refuses to replace an analysis without --force.
+
+    A directory that holds other files (not an analysis) gets the report written into it, as it always did:
+    replacing it whole would delete what it held.
+    """
+    if not out.exists():
+        return True
+    if not out.is_dir():
+        raise CliError(f"--out {out}: exists and is not a directory")
+    if not (out / "fit.json").is_file():
+        return not any(out.iterdir())
+    what = _previous(out / "fit.json")
+    if not force:
+        raise CliError(f"{out}: holds an analysis already ({what}); --force replaces it, or --out names "
+                       "another directory")  # fmt: skip
+    print(f"gonio: warning: replacing the analysis in {out} ({what}) (--force)", file=sys.stderr)
+    return True
+
+
+def _previous(fit: Path) -> str:
+    """What an earlier analysis chose, for the refusal's message."""
+    import json
+
+    try:
+        doc = json.loads(fit.read_text(encoding="utf-8"))
+        return f"chose {doc['chosen']} from {len(doc['candidates'])} models, {doc['n_samples']} samples"
+    except (OSError, ValueError, KeyError, TypeError):
+        return "its fit.json is unreadable"
+
+
 def _analyze(args: argparse.Namespace) -> int:
     from analysis.analyze import default_out, load_and_fit, stderr_log, write_report
+    from analysis.batch.records import staged_dir
     from analysis.ladder import parse_models
 
     log = None if args.quiet else stderr_log
     models = parse_models(args.models) if args.models else None
+    out = Path(args.out) if args.out else default_out(args.source)
+    whole = _whole(out, args.force)  # before the fit: a refusal should not cost minutes
     a = load_and_fit(args.source, models=models, loss=args.loss, starts=args.starts, samples=args.samples,
                      seed=args.seed, compare=args.compare, log=log, errors=args.errors)  # fmt: skip
-    page = write_report(a, args.out or default_out(args.source), y_scale=args.y_scale, merl=args.merl, log=log)
+    if not whole:
+        page = write_report(a, out, y_scale=args.y_scale, merl=args.merl, log=log)
+    else:
+        with staged_dir(out) as tmp:
+            # The progress lines name where the files will be, not the temporary directory they are written in.
+            shown = None if log is None else (lambda line: stderr_log(line.replace(str(tmp), str(out))))
+            page = out / write_report(a, tmp, y_scale=args.y_scale, merl=args.merl, log=shown).relative_to(tmp)
     print(page)
     print(a.verdict())
     return EXIT_OK
@@ -53,6 +103,8 @@ def add_analyze_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     )  # fmt: skip
     p.add_argument("source", help="run directory or MERL .binary file")
     p.add_argument("--out", help="report directory (default: RUN/analysis, or <name>-analysis beside a MERL file)")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing analysis in the report directory (without it gonio analyze refuses)")
     add_fit_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=_analyze)

@@ -15,6 +15,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from gonio.cli_analyze import _positive, add_fit_options
+from gonio.cli_errors import CliError
 from gonio.cli_run import EXIT_BAD_INPUT, EXIT_OK
 
 if TYPE_CHECKING:  # imported for real inside the commands: Dask and scipy would slow every gonio command
@@ -61,12 +62,12 @@ def _batch_study(args: argparse.Namespace) -> int:
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     if args.rig or args.sweep:
         if args.materials or args.quick:
-            raise ValueError("--materials and --quick choose the sweep_tradeoff study; with --rig and --sweep the "
+            raise CliError("--materials and --quick choose the sweep_tradeoff study; with --rig and --sweep the "
                              "study is those files")  # fmt: skip
         cells = file_cells(args.rig or [], args.sweep or [], seeds, models=args.models, max_theta_deg=args.max_theta)
     else:
         if args.models:
-            raise ValueError("--models sets the ladder of a study of --rig and --sweep files; the sweep_tradeoff "
+            raise CliError("--models sets the ladder of a study of --rig and --sweep files; the sweep_tradeoff "
                              "study fits each material with its own model family")  # fmt: skip
         cells = tradeoff_cells(args.materials or KEYS, seeds, quick=args.quick)
     result = run_study(cells, args.out, cluster=_cluster(args), serial=args.serial, keep_runs=args.keep_runs,

@@ -18,6 +18,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from gonio.cli_errors import CliError
 from gonio.cli_run import EXIT_BAD_INPUT, EXIT_CAMERA, EXIT_HARDWARE, EXIT_OK, _rig
 
 
@@ -30,7 +31,10 @@ def _camera(args: argparse.Namespace) -> int:
     from rig.run.session import instruments
 
     rig = _rig(args.rig)
-    settings = CalibrationSettings(steps=args.steps, flat_frames=args.flat_frames)
+    try:
+        settings = CalibrationSettings(steps=args.steps, flat_frames=args.flat_frames)
+    except ValueError as exc:  # the settings are the command line's options
+        raise CliError(str(exc)) from None
     cam = rig.file.camera
     timing = CameraTiming(cam.min_exposure_s, cam.max_exposure_s, overhead_s=cam.overhead_s)
     say = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))

@@ -2,7 +2,8 @@
 
 Exit codes: 0 done; 2 bad input (a rig or sweep file, an argument, a run directory); 3 a hardware fault
 (link or servo) stopped the run; 4 a camera fault stopped it; 130 interrupted (Ctrl-C or SIGTERM). A
-stopped run keeps everything measured; ``gonio resume RUN`` continues it.
+stopped run keeps everything measured; ``gonio resume RUN`` continues it. The codes of every command
+(1 declined, 70 a bug, 74 an operating-system error, 141 a closed output pipe too) are gonio.cli_errors'.
 """
 
 from __future__ import annotations
@@ -16,10 +17,11 @@ from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
 
+# Re-exported: the exit codes have always been importable from here (see docs/architecture.md).
+from gonio.cli_errors import EXIT_BAD_INPUT as EXIT_BAD_INPUT
+from gonio.cli_errors import EXIT_CAMERA, EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_OK
 from rig.run.config import RigConfig, load_rig, load_sweep, rig_config
 from rig.run.config_schema import RigFile
-
-EXIT_OK, EXIT_BAD_INPUT, EXIT_HARDWARE, EXIT_CAMERA, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
 
 
 def _rig(path: str | None) -> RigConfig:
@@ -82,13 +84,16 @@ def _run(args: argparse.Namespace) -> int:
 
 def _resume(args: argparse.Namespace) -> int:
     from rig.run.runner import RunStopped
-    from rig.run.session import resume_run
+    from rig.run.session import RunFinished, resume_run
 
     try:
         with _sigterm_as_interrupt():
             _report(resume_run(args.run, progress=not args.quiet))
     except RunStopped as exc:
         return _stopped(exc)
+    except RunFinished as exc:
+        # Resuming is idempotent: a script may resume whatever it finds, and a finished run is done, not wrong.
+        print(f"gonio: {exc}", file=sys.stderr)
     return EXIT_OK
 
 

@@ -1,4 +1,4 @@
-"""``gonio sim servos`` and ``gonio sim grbl``: serve a virtual bus on a pty until Ctrl-C.
+"""``gonio sim servos|grbl|rig``: serve simulated hardware on a pty until Ctrl-C; ``gonio sim merl``: a MERL file.
 
 The simulator package is imported only when one of these commands runs (nothing in rig imports it at
 module level), so the controller never depends on the stand-in hardware.
@@ -119,8 +119,28 @@ def _rig(args: argparse.Namespace) -> int:
     return 0
 
 
+#: The material of ``gonio sim merl`` without --rig: a glossy paint (a diffuse base under a GGX dielectric coat).
+PAINT = {"model": "CookTorrance", "alpha": 0.2, "fresnel": "dielectric", "eta": 1.5, "rho_d": [0.2, 0.3, 0.4]}
+
+
+def _merl(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from model.merl import MerlTable, write_merl
+    from rig.run.config import load_rig, material_from, parse, rig_config
+    from rig.run.config_schema import RigFile
+
+    cfg = load_rig(args.rig) if args.rig else rig_config(parse({"simulation": {"material": PAINT}}, RigFile))
+    material = material_from(cfg)
+    out = Path(args.out)
+    print(f"tabulating {material!r} at the 1,458,000 MERL bins", file=sys.stderr, flush=True)
+    write_merl(MerlTable.from_model(material), out)
+    print(out)
+    return 0
+
+
 def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """Register ``gonio sim servos`` and ``gonio sim grbl``."""
+    """Register ``gonio sim servos``, ``grbl``, ``rig`` and ``merl``."""
     sim = sub.add_parser(
         "sim",
         help="serve simulated hardware on a pseudo-terminal",
@@ -164,3 +184,13 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     rig.add_argument("--frames", default="out/sim-frames", help="directory for DNG frames (default out/sim-frames)")
     rig.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
     rig.set_defaults(func=_rig)
+    merl = kinds.add_parser(
+        "merl", help="write a MERL .binary file of a known material, to try gonio analyze on",
+        description="Tabulates a material at the MERL bins (90 x 90 x 180 half/difference angles, three channels: "
+        "a 35 MB file) and writes it in the MERL format: the rig file's [simulation.material], or a glossy paint "
+        "(CookTorrance alpha 0.2, dielectric eta 1.5 over a diffuse base rho_d 0.2, 0.3, 0.4).",
+        epilog="Example: gonio sim merl --out paint.binary",
+    )  # fmt: skip
+    merl.add_argument("--out", required=True, help="the .binary file to write (replaced)")
+    merl.add_argument("--rig", help="rig file (TOML) whose [simulation.material] to tabulate; default: a paint")
+    merl.set_defaults(func=_merl)

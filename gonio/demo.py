@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from gonio.cli_errors import CliError
 from model.geometry import degrees_to_vector
 from rig.run.config import RigConfig, material_from, parse, rig_config, sweep_config
 from rig.run.config_schema import RigFile, SweepFile
@@ -95,7 +96,7 @@ def run_demo(out: Path, *, points: int = 13, progress: bool = True) -> int:
     from rig.run.session import start_run
 
     if points < 2:
-        raise ValueError(f"--points {points}: expected at least 2 view angles")
+        raise CliError(f"--points {points}: expected at least 2 view angles")
     rig = demo_rig()
     sweep_table: dict[str, Any] = {
         "name": "demo in-plane slices",
@@ -107,7 +108,7 @@ def run_demo(out: Path, *, points: int = 13, progress: bool = True) -> int:
     run_dir = out / "run"
     if run_dir.exists():
         if not (run_dir / "manifest.json").exists():
-            raise ValueError(f"{run_dir} exists and is not a gonio run: refusing to replace it")
+            raise CliError(f"{run_dir} exists and is not a gonio run: refusing to replace it")
         shutil.rmtree(run_dir)
     summary = start_run(rig, sweep, run_dir, progress=progress)
     with open(summary.table, newline="") as fh:

@@ -27,7 +27,7 @@ from analysis.batch.catalogue import write_catalogue
 from analysis.batch.cluster import ClusterSettings, Task, cluster_client, run_tasks
 from analysis.batch.inputs import AnalyzeSettings, BatchInput, batch_inputs, fingerprint
 from analysis.batch.records import batch_lock, is_done, read_record, sweep_partials, utc_now, write_record
-from analysis.result import Log
+from analysis.result import AnalysisError, Log
 from model.version import gonio_version
 
 
@@ -56,11 +56,11 @@ def _check_settings(s: AnalyzeSettings) -> None:
     if s.models:
         parse_models(s.models)
     if s.loss not in LOSSES:
-        raise ValueError(f"--loss {s.loss!r}: expected one of {', '.join(LOSSES)}")
+        raise AnalysisError(f"--loss {s.loss!r}: expected one of {', '.join(LOSSES)}")
     if s.errors not in ("total", "point"):
-        raise ValueError(f"--errors {s.errors!r}: expected 'total' or 'point'")
+        raise AnalysisError(f"--errors {s.errors!r}: expected 'total' or 'point'")
     if s.compare is not None and not Path(s.compare).is_file():
-        raise ValueError(f"--compare {s.compare}: not found (expected a MERL .binary file)")
+        raise AnalysisError(f"--compare {s.compare}: not found (expected a MERL .binary file)")
 
 
 def _killed(inp: BatchInput, fp: str, exc: BaseException) -> dict[str, Any]:
@@ -91,7 +91,7 @@ def batch_analyze(
     inputs = batch_inputs(given)
     root = Path(out).absolute()
     if root.exists() and not root.is_dir():
-        raise ValueError(f"--out {root}: exists and is not a directory")
+        raise AnalysisError(f"--out {root}: exists and is not a directory")
     root.mkdir(parents=True, exist_ok=True)
     with batch_lock(root):
         return _run(inputs, root, s, cluster, client, progress, say, probe)

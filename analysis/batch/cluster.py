@@ -22,7 +22,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from analysis.result import Log
+from analysis.result import AnalysisError, Log
 
 
 @dataclass(frozen=True)
@@ -39,9 +39,10 @@ class ClusterSettings:
 
     def __post_init__(self) -> None:
         if self.workers is not None and self.workers < 1:
-            raise ValueError(f"--workers {self.workers}: expected at least 1")
+            raise AnalysisError(f"--workers {self.workers}: expected at least 1")
         if self.scheduler is not None and self.workers is not None:
-            raise ValueError("--workers sizes a local cluster; with --scheduler the cluster is the one running there")
+            raise AnalysisError("--workers sizes a local cluster; with --scheduler the cluster is the one running "
+                                "there")
 
 
 @dataclass(frozen=True)
@@ -80,7 +81,7 @@ def cluster_client(settings: ClusterSettings | None = None, log: Log | None = No
         try:
             client = Client(s.scheduler, timeout=f"{s.connect_timeout_s}s")
         except (OSError, TimeoutError) as exc:
-            raise ValueError(f"--scheduler {s.scheduler}: cannot reach a Dask scheduler there: {exc}") from exc
+            raise AnalysisError(f"--scheduler {s.scheduler}: cannot reach a Dask scheduler there: {exc}") from exc
         where = f"Dask scheduler {s.scheduler}, {len(client.scheduler_info().get('workers', {}))} workers"
     else:
         n = s.workers or cores()

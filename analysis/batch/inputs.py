@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from analysis.result import AnalysisError
 from model.version import gonio_version
 from rig.run.store import JOURNAL, MANIFEST, STATUS
 
@@ -71,12 +72,12 @@ def batch_inputs(sources: Sequence[str | os.PathLike[str]]) -> list[BatchInput]:
     """The inputs in the order given, each with a unique key; ValueError if an input is listed twice."""
     paths = [str(s) for s in sources]
     if not paths:
-        raise ValueError("batch: no inputs (expected run directories or MERL .binary files)")
+        raise AnalysisError("batch: no inputs (expected run directories or MERL .binary files)")
     seen: dict[str, str] = {}
     for p in paths:
         real = os.path.realpath(p)
         if real in seen:
-            raise ValueError(f"batch: {p!r} is listed twice (also as {seen[real]!r})")
+            raise AnalysisError(f"batch: {p!r} is listed twice (also as {seen[real]!r})")
         seen[real] = p
     stems = [_stem(Path(p)) for p in paths]
     out = []

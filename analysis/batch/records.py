@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.files.atomic import write_atomic
+from analysis.result import AnalysisError
 
 TASKS = ".tasks"
 LOCK = ".lock"
@@ -131,7 +132,7 @@ def batch_lock(out: Path) -> Iterator[None]:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             holder = (out / LOCK).read_text(encoding="utf-8", errors="replace").strip() or "another process"
-            raise ValueError(f"--out {out}: another batch is writing there ({holder}); wait for it or use another "
+            raise AnalysisError(f"--out {out}: another batch is writing there ({holder}); wait for it or use another "
                              "directory") from None  # fmt: skip
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"batch of {worker_name()} since {utc_now()}".encode(), 0)

@@ -47,7 +47,7 @@ from analysis.batch.tradeoff import (
     rusinkiewicz_design,
     sizes,
 )
-from analysis.result import Log
+from analysis.result import AnalysisError, Log
 from model.version import gonio_version
 from rig.run.table_parquet import Column, write_parquet
 
@@ -90,7 +90,7 @@ def tradeoff_cells(materials: Sequence[str] = KEYS, seeds: Iterable[int] = (1, 2
     """The cells of bench/sweep_tradeoff: per material (by KEYS name) and seed, every grid and adaptive variant."""
     unknown = [m for m in materials if m not in KEYS]
     if unknown:
-        raise ValueError(f"--materials {' '.join(unknown)}: unknown; expected some of {', '.join(KEYS)}")
+        raise AnalysisError(f"--materials {' '.join(unknown)}: unknown; expected some of {', '.join(KEYS)}")
     grid_sizes, rus_sizes = sizes(quick)
     cells = []
     for key in materials:
@@ -113,13 +113,13 @@ def file_cells(rigs: Sequence[str], sweeps: Sequence[str], seeds: Iterable[int],
     if models:
         parse_models(models)
     if not rigs or not sweeps:
-        raise ValueError("gonio batch study: --rig and --sweep each need at least one file (or neither, for the "
+        raise AnalysisError("gonio batch study: --rig and --sweep each need at least one file (or neither, for the "
                          "study of bench/sweep_tradeoff)")  # fmt: skip
     labels = []
     for path in rigs:
         rig = load_rig(path)
         if rig.file.link.kind != "simulated":
-            raise ValueError(f"{path}: [link] kind = {rig.file.link.kind!r}: a study runs on the simulated rig "
+            raise AnalysisError(f"{path}: [link] kind = {rig.file.link.kind!r}: a study runs on the simulated rig "
                              "(kind = 'simulated'), whose material it scores the fits against")  # fmt: skip
         labels.append(f"{rig.file.name} ({Path(path).name})")
     designs = [f"{load_sweep(p).file.name} ({Path(p).name})" for p in sweeps]
@@ -301,9 +301,9 @@ def run_study(
 ) -> StudyResult:
     """Run every cell not already done (on ``client``, a cluster from ``cluster``, or in this process if serial)."""
     if not cells:
-        raise ValueError("gonio batch study: no cells to run")
+        raise AnalysisError("gonio batch study: no cells to run")
     if len({c.key for c in cells}) != len(cells):
-        raise ValueError("gonio batch study: two cells share a key (a rig or sweep file listed twice?)")
+        raise AnalysisError("gonio batch study: two cells share a key (a rig or sweep file listed twice?)")
     say = log or (lambda _: None)
     root = Path(out).absolute()
     root.mkdir(parents=True, exist_ok=True)

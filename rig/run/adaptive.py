@@ -47,7 +47,7 @@ from model.fit.solve import FitResult, fit
 from model.fit.spec import FitSpec
 from model.geometry import degrees_to_vector
 from rig.instrument.kinematics import solve_degrees
-from rig.run.config import RigConfig, parse, sweep_config
+from rig.run.config import ConfigError, RigConfig, parse, sweep_config
 from rig.run.config_schema import SweepFile
 from rig.run.sweeps import directions_to_half_diff, half_diff_to_directions
 from rig.run.table_parquet import write_beside
@@ -231,13 +231,13 @@ def run_adaptive(
     s = settings or AdaptiveSettings()
     out = Path(out)
     if out.exists() and any(out.iterdir()):
-        raise ValueError(f"{out}: exists and is not empty; an adaptive sweep needs a fresh directory")
+        raise ConfigError(f"{out}: exists and is not empty; an adaptive sweep needs a fresh directory")
     out.mkdir(parents=True, exist_ok=True)
     say = log or (lambda msg: print(msg, file=sys.stderr))
     pairs = pairs or error_pairs(max_theta_deg=s.max_theta_deg, seed=s.seed + 1)
     pool = candidate_points(rig.geometry, s.candidates, max_theta_deg=s.max_theta_deg, seed=s.seed)
     if len(pool) < s.budget:
-        raise ValueError(f"{rig.path}: only {len(pool)} of {s.candidates} candidates are reachable; need {s.budget}")
+        raise ConfigError(f"{rig.path}: only {len(pool)} of {s.candidates} candidates are reachable; need {s.budget}")
     rig = with_reference_snr(rig, s.reference_snr)
     result = AdaptiveResult()
     rows: list[dict[str, Any]] = []

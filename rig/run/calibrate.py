@@ -33,7 +33,7 @@ from acquisition.files.atomic import atomic_path
 from acquisition.flatfield import FlatField, FlatFieldError, estimate_flat_field
 from acquisition.frame import Camera, Frame
 from acquisition.noise import SensorNoise
-from acquisition.photon_transfer import PhotonTransfer, PtcPoint, fit_photon_transfer, pair_points
+from acquisition.photon_transfer import PhotonTransfer, PhotonTransferError, PtcPoint, fit_photon_transfer, pair_points
 from model.version import gonio_version
 from rig.instrument.clock import Clock
 from rig.run.config import ConfigError, RigConfig
@@ -95,8 +95,8 @@ def saturation_exposure(camera: Camera, timing: CameraTiming, start_s: float) ->
                 ta, ma = rising[-1] if rising else (t0, m0)
                 return float(min(ta * m1 / max(ma, 1e-9), timing.max_exposure_s)), len(history)
         if applied >= timing.max_exposure_s:
-            raise ValueError(f"the sensor does not saturate within the longest exposure ({timing.max_exposure_s:g} s): "
-                             "brighten the flat-field source")  # fmt: skip
+            raise PhotonTransferError(f"the sensor does not saturate within the longest exposure "
+                                      f"({timing.max_exposure_s:g} s): brighten the flat-field source")
         t = min(2.0 * applied, timing.max_exposure_s)
 
 

@@ -7,6 +7,7 @@ what was expected; unknown keys are errors. The schema, with units and defaults,
 from __future__ import annotations
 
 import datetime
+import difflib
 import re
 import tomllib
 import typing
@@ -77,6 +78,14 @@ def _allowed_keys(model: type[BaseModel], loc: tuple[int | str, ...]) -> list[st
     return sorted(current.model_fields) if current is not None else []
 
 
+def _did_you_mean(word: Any, known: list[str]) -> str:
+    """``"; did you mean 'x'?"`` for the closest known name to a misspelt key or value, else ``""``."""
+    if not isinstance(word, str):
+        return ""
+    close = difflib.get_close_matches(word, known, n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
 def _clean(loc: tuple[int | str, ...]) -> tuple[int | str, ...]:
     # Union members add their type's name to the path ("constrained-float", "tuple[...]"): not TOML keys.
     return tuple(p for p in loc if isinstance(p, int) or re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", p))
@@ -92,7 +101,9 @@ def _messages(path: Path, model: type[BaseModel], err: ValidationError) -> str:
         key = _key(loc)
         if e["type"] == "extra_forbidden":
             allowed = _allowed_keys(model, loc)
-            lines.append(f"{path}: {key} = {_short(e['input'])}: unknown key; expected one of {', '.join(allowed)}")
+            hint = _did_you_mean(loc[-1] if loc else None, allowed)
+            lines.append(f"{path}: {key} = {_short(e['input'])}: unknown key; expected one of {', '.join(allowed)}"
+                         f"{hint}")
         elif e["type"] == "missing" and loc and isinstance(loc[-1], int):
             lines.append(f"{path}: {_key(loc[:-1])}: too few items; expected at least {loc[-1] + 1}")
         elif e["type"] == "missing":
@@ -107,6 +118,8 @@ def _messages(path: Path, model: type[BaseModel], err: ValidationError) -> str:
             shown = _short(_plain(e["input"])) if not isinstance(e["input"], dict) else "(table)"
             head = f"{path}: {key} = {shown}: expected "
             text = msg[0].lower() + msg[1:] if msg else "a valid value"
+            if e["type"] == "literal_error":
+                text += _did_you_mean(e["input"], re.findall(r"'([^']*)'", str(e.get("ctx", {}).get("expected", ""))))
             same = [i for i, line in enumerate(lines) if line.startswith(head)]
             if same:  # one key failing every member of a union: say what each member wanted
                 lines[same[0]] += f" or {text}"
@@ -250,7 +263,7 @@ def _axes(path: Path, cfg: RigFile, geometry: RigGeometry) -> tuple[Axis, ...]:
     if unknown:
         raise ConfigError(
             f"{path}: axes.{unknown[0]}: no such joint in layout {geometry.layout!r}; "
-            f"expected one of {', '.join(joints)}"
+            f"expected one of {', '.join(joints)}{_did_you_mean(unknown[0], list(joints))}"
         )
     traits = registry.load(cfg.link.kind).for_file(cfg)
     letters = traits.addressing == "letter"

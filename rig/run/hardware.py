@@ -18,7 +18,7 @@ from rig.instrument.links.dynamixel import DynamixelOptions
 from rig.run import registry
 from rig.run.backends import Instruments, RigBackend, StartPose
 from rig.run.bounded_camera import BoundedCamera
-from rig.run.config import RigConfig
+from rig.run.config import ConfigError, RigConfig
 from rig.run.flat_source import ManualFlatSource
 from rig.run.reference import ManualBoard, ManualReference, ReferenceTarget
 
@@ -34,7 +34,7 @@ def open_camera(rig: RigConfig, clock: Clock) -> Camera:
     cam = rig.file.camera
     providers = [n for n in registry.names() if cam.backend in registry.load(n).cameras]
     if providers:
-        raise ValueError(f"{rig.path}: camera.backend = {cam.backend!r} needs the {providers[0]} link")
+        raise ConfigError(f"{rig.path}: camera.backend = {cam.backend!r} needs the {providers[0]} link")
     return camera_backend(cam.backend).open(cam.model_dump(), clock)
 
 

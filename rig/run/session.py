@@ -28,7 +28,11 @@ from rig.run.journal import check_records
 from rig.run.measure import CaptureSettings
 from rig.run.plan import Plan, plan_sweep
 from rig.run.runner import ReferenceSettings, Runner, RunOptions, RunSummary
-from rig.run.store import JOURNAL, RunStore
+from rig.run.store import JOURNAL, RunStore, RunStoreError
+
+
+class RunFinished(RunStoreError):
+    """``resume_run`` on a run that finished: there is nothing to measure (the command line says so and exits 0)."""
 
 
 def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
@@ -139,7 +143,7 @@ def start_run(rig: RigConfig, sweep: SweepConfig, out: str | Path, *, progress: 
     """Plan, create the run directory ``out`` and measure; raises RunStopped if it stops early."""
     plan = make_plan(rig, sweep)
     if not plan.points:
-        raise ValueError(f"{sweep.path}: no reachable point on this rig ({len(plan.skipped)} unreachable)")
+        raise ConfigError(f"{sweep.path}: no reachable point on this rig ({len(plan.skipped)} unreachable)")
     with RunStore.create(out, manifest(rig, sweep, plan, options_for(rig, sweep, progress))) as store:
         return _run(store, rig, sweep, plan, progress)
 
@@ -159,11 +163,11 @@ def resume_run(path: str | Path, *, progress: bool = True) -> RunSummary:
     with RunStore.open(path) as store:
         previous = getattr(store, "previous_status", None) or store.status()
         if previous.get("state") == "finished":
-            raise ValueError(f"{path}: the run is finished ({store.path / 'samples.csv'}); nothing to resume")
+            raise RunFinished(f"{path}: the run is finished ({store.path / 'samples.csv'}); nothing to resume")
         check_records(store.records(), store.path / JOURNAL)  # before anything is opened or moved
         rig, sweep = configs_of(store)
         plan = make_plan(rig, sweep)
         if len(plan.points) != store.manifest["points"]:
-            raise ValueError(f"{path}: the plan rebuilt from the manifest has {len(plan.points)} points, "
+            raise RunStoreError(f"{path}: the plan rebuilt from the manifest has {len(plan.points)} points, "
                              f"the run had {store.manifest['points']}: was gonio upgraded in between?")  # fmt: skip
         return _run(store, rig, sweep, plan, progress)

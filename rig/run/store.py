@@ -80,7 +80,8 @@ def _check_empty(run: Path) -> None:
         raise RunStoreError(f"{run}: exists and is not a directory")
     names = sorted(p.name for p in run.iterdir())
     if MANIFEST in names:
-        raise RunStoreError(f"{run}: already holds a run ({MANIFEST}); use RunStore.open to resume it")
+        raise RunStoreError(f"{run}: already holds a run ({MANIFEST}); to continue it: gonio resume {run} "
+                            "(from Python: rig.run.session.resume_run); for a new run choose another directory")
     leftovers = set(names) <= {LOCK, JOURNAL} and (JOURNAL not in names or (run / JOURNAL).stat().st_size == 0)
     if names and leftovers and _lock_is_free(run / LOCK):
         # A creation by an older gonio killed before its manifest: nothing was measured; start afresh.
@@ -227,6 +228,10 @@ class RunStore:
     def _existing(cls, path: str | Path, *, writable: bool) -> RunStore:
         store = cls(Path(path), writable=writable)
         where = store.path / MANIFEST
+        if not store.path.exists():
+            raise RunStoreError(f"{store.path}: does not exist (expected a run directory written by gonio run)")
+        if not store.path.is_dir():
+            raise RunStoreError(f"{store.path}: is a file, not a run directory")
         if not where.is_file():
             raise RunStoreError(f"{store.path}: not a run directory (no {MANIFEST})")
         if writable:

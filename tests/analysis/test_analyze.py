@@ -317,3 +317,27 @@ def test_slices_fall_back_to_a_grid_of_incidences_and_coverage_counts_cells() ->
     cov = coverage(angles_of(degrees_to_vector([5.0, 5.0, 45.0], 0.0), degrees_to_vector([5.0, 5.0, 45.0], 180.0)))
     # Mirror pairs: theta_h = 0, theta_d = theta_i: two distinct cells of 81.
     assert int(cov.occupied_hd.sum()) == 2 and cov.fraction_hd == pytest.approx(2 / 81)
+
+
+def test_an_existing_analysis_is_replaced_only_with_force(gold_run: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "report"
+    base = ["analyze", str(gold_run), "--out", str(out), "--models", "lambert", "--starts", "1", "--quiet"]
+    assert cli.main(base) == 0
+    first = (out / "fit.json").read_bytes()
+    (out / "notes.txt").write_text("kept unless replaced")
+    capsys.readouterr()
+    assert cli.main([*base[:5], "lambert,ggx_conductor", *base[6:]]) == 2  # refused before any fitting
+    err = capsys.readouterr().err
+    assert f"{out}: holds an analysis already (chose lambert from 1 models, " in err and "--force replaces it" in err
+    assert (out / "fit.json").read_bytes() == first
+    bad = tmp_path / "ref.binary"
+    bad.write_bytes(b"not MERL")
+    assert cli.main([*base, "--force", "--compare", str(bad)]) == 2  # a failed replacement leaves the old one
+    assert (out / "fit.json").read_bytes() == first and (out / "notes.txt").exists()
+    assert cli.main([*base[:5], "lambert,ggx_conductor", *base[6:8], "--force"]) == 0  # not quiet: progress shown
+    err = capsys.readouterr().err
+    assert "warning: replacing the analysis in" in err
+    wrote = [line for line in err.splitlines() if line.startswith("wrote ")]
+    assert wrote and all(line.startswith(f"wrote {out}/") for line in wrote)  # where the files end up, not the stage
+    assert fit_doc(out)["chosen"] == "ggx_conductor" and not (out / "notes.txt").exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # nothing staged is left behind

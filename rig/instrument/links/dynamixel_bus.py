@@ -122,6 +122,16 @@ _MAX_TIMEOUT_SCALE = 64.0
 _RELAX_AFTER = 200
 
 
+def _open_hint(exc: BaseException) -> str:
+    """What usually fixes a port that will not open (docs/hardware.md has the details)."""
+    text = str(exc)
+    if "Permission denied" in text or getattr(exc, "errno", None) == 13:
+        return "; join the port's group (usually dialout: `sudo usermod -aG dialout $USER`, then log in again)"
+    if "No such file" in text or getattr(exc, "errno", None) == 2:
+        return "; is the adapter plugged in? `ls /dev/serial/by-id/` lists the USB serial ports"
+    return ""
+
+
 class DynamixelBus:
     """An open Dynamixel Protocol 2.0 port; all access is serialised through this object.
 
@@ -157,7 +167,7 @@ class DynamixelBus:
         try:
             opened = self._port.openPort()
         except _PORT_FAILURES as exc:
-            raise LinkError(f"cannot open Dynamixel port {port!r}: {exc}") from exc
+            raise LinkError(f"cannot open Dynamixel port {port!r}: {exc}{_open_hint(exc)}") from exc
         if not opened:
             raise LinkError(f"cannot open Dynamixel port {port!r} at {baudrate} baud")
         self.comm_retries_used = 0

@@ -68,6 +68,8 @@ class ControlTable:
     ticks_per_turn: int
     velocity_unit_rpm: float
     accel_unit_rpm2: float
+    id: int = 7
+    baud_rate: int = 8
     operating_mode: int = 11
     max_position_limit: int = 48
     min_position_limit: int = 52
@@ -99,6 +101,19 @@ class ControlTable:
     def accel_units(self, deg_per_s2: float) -> int:
         """Profile Acceleration register value for an acceleration in degrees/s^2 (at least 1)."""
         return max(1, round(deg_per_s2 * 10.0 / self.accel_unit_rpm2))
+
+
+BAUD_RATE_VALUES = {9600: 0, 57600: 1, 115200: 2, 1_000_000: 3, 2_000_000: 4, 3_000_000: 5, 4_000_000: 6,
+                    4_500_000: 7}  # fmt: skip
+"""Baud rate (bps) -> Baud Rate (8) register value; the X, MX(2.0) and P series share these (e-Manual)."""
+
+
+def baud_rate_value(baudrate: int) -> int:
+    """The Baud Rate (8) register value for ``baudrate`` bps; ValueError listing the rates a servo can take."""
+    if baudrate not in BAUD_RATE_VALUES:
+        rates = ", ".join(str(b) for b in BAUD_RATE_VALUES)
+        raise ValueError(f"baud rate {baudrate!r}: a Dynamixel servo takes one of {rates}")
+    return BAUD_RATE_VALUES[baudrate]
 
 
 X_SERIES = ControlTable(family="X", ticks_per_turn=4096, velocity_unit_rpm=0.229, accel_unit_rpm2=214.577)

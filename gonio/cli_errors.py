@@ -1,0 +1,169 @@
+"""How the command line reports a failure: one line that names what went wrong, and an exit code that says whose.
+
+Only gonio's own input errors (a rig, sweep or table file, a run directory, an argument) are exit 2: they are
+the user's to fix. A failing disk or a missing permission (OSError) is exit 74 with the path and the system's
+words for it; a hardware fault 3, a camera fault 4; anything else is a bug in gonio (exit 70), reported with
+where it was raised (``gonio --debug`` prints the whole traceback). Output cut short by a closed pipe (``gonio
+plan ... | head``) ends quietly with 141, as a program killed by SIGPIPE does.
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import errno
+import os
+import re
+import select
+import sys
+import traceback
+from pathlib import Path
+
+EXIT_OK, EXIT_BAD_INPUT, EXIT_HARDWARE, EXIT_CAMERA, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
+# A prompt answered no; a bug (sysexits' EX_SOFTWARE); a file or device failed (EX_IOERR); stdout's reader left.
+EXIT_DECLINED, EXIT_BUG, EXIT_OS_ERROR, EXIT_PIPE = 1, 70, 74, 141
+
+EXIT_CODES_HELP = (
+    "Exit codes: 0 done; 1 declined at a confirmation prompt (nothing changed); 2 bad input (a rig, sweep or "
+    "table file, a run or analysis directory, an argument); 3 hardware fault; 4 camera fault; 70 internal error "
+    "(a bug: please report it with the output of `gonio --debug ...`); 74 operating-system error (a file or "
+    "device: the path and the reason are printed); 130 interrupted (Ctrl-C, SIGTERM); 141 output pipe closed."
+)
+
+
+class CliError(ValueError):
+    """An input error the command line itself finds (an unknown axis, an analysis it would overwrite): exit 2."""
+
+
+def suggestion(word: str, known: list[str] | tuple[str, ...]) -> str:
+    """``"; did you mean 'x'?"`` for the closest of ``known`` to a misspelt ``word``, or ``""``."""
+    close = difflib.get_close_matches(word, list(known), n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
+def _input_errors() -> tuple[type[BaseException], ...]:
+    # Imported here, not at the top: analysis pulls scipy, and `gonio --help` should stay quick.
+    from acquisition.calibration import CalibrationError
+    from acquisition.cameras import BackendNotInstalledError
+    from acquisition.flatfield import FlatFieldError
+    from analysis.result import AnalysisError
+    from model._params import ParameterError
+    from model.fit.samples import FitError
+    from model.merl import MerlFormatError
+    from model.serialize import ModelFormatError
+    from rig.instrument.axis import AxisLimitError
+    from rig.instrument.geometry import GeometryError
+    from rig.instrument.kinematics_types import UnreachableError
+    from rig.run.config import ConfigError
+    from rig.run.registry import BackendError
+    from rig.run.store import RunStoreError
+
+    return (CliError, ConfigError, RunStoreError, AnalysisError, AxisLimitError, GeometryError, UnreachableError,
+            ParameterError, ModelFormatError, MerlFormatError, FitError, FlatFieldError, CalibrationError,
+            BackendError, BackendNotInstalledError)  # fmt: skip
+
+
+def _camera_errors() -> tuple[type[BaseException], ...]:
+    from acquisition.cameras import CameraError
+    from rig.run.bounded_camera import CameraError as BoundedCameraError
+
+    return (CameraError, BoundedCameraError)
+
+
+def os_error_message(exc: OSError) -> str:
+    """``path: reason [ENAME]`` for an OSError, naming both files of a failed rename."""
+    name = errno.errorcode.get(exc.errno, "") if exc.errno is not None else ""
+    reason = exc.strerror or str(exc)
+    paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
+    where = " -> ".join(paths) + ": " if paths else ""
+    return f"{where}{reason}" + (f" [{name}]" if name else "")
+
+
+def _where(exc: BaseException) -> str:
+    """The innermost frame of the traceback, as ``package/module.py:line in function``."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    if not frames:
+        return "an unknown place"
+    last = frames[-1]
+    path = Path(last.filename)
+    root = Path(__file__).resolve().parent.parent
+    try:
+        shown = str(path.resolve().relative_to(root))
+    except ValueError:
+        shown = str(path)
+    return f"{shown}:{last.lineno} in {last.name}"
+
+
+def stdout_closed() -> bool:
+    """Whether nobody reads stdout any more (a pipe whose reader exited): the poll reports an error on it."""
+    try:
+        fd = sys.stdout.fileno()
+        poller = select.poll()
+        poller.register(fd, select.POLLOUT)
+        return any(event & (select.POLLERR | select.POLLHUP) for _, event in poller.poll(0))
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def quiet_broken_pipe() -> int:
+    """Point stdout at /dev/null (so the interpreter's last flush cannot fail again) and give exit 141."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    return EXIT_PIPE
+
+
+def report(exc: BaseException, debug: bool) -> int:
+    """Print one line (or, with ``debug``, the traceback) for an exception a command raised; return the exit code."""
+    from rig.instrument.links.base import LinkError
+
+    if debug:
+        traceback.print_exception(exc, file=sys.stderr)
+    if isinstance(exc, KeyboardInterrupt):
+        print("gonio: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    if isinstance(exc, LinkError):
+        print(f"gonio: hardware fault: {exc}", file=sys.stderr)
+        return EXIT_HARDWARE
+    if isinstance(exc, _camera_errors()):
+        print(f"gonio: camera fault: {exc}", file=sys.stderr)
+        return EXIT_CAMERA
+    if isinstance(exc, _input_errors()):
+        print(f"gonio: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if isinstance(exc, OSError):
+        print(f"gonio: operating-system error: {os_error_message(exc)}", file=sys.stderr)
+        return EXIT_OS_ERROR
+    print(f"gonio: internal error (a bug in gonio, not in your input): {type(exc).__name__}: {exc}\n"
+          f"  raised at {_where(exc)}"
+          + ("" if debug else "\n  run the same command as `gonio --debug ...` for the whole traceback, and please "
+             "report it"), file=sys.stderr)  # fmt: skip
+    return EXIT_BUG
+
+
+def _option_strings(parser: argparse.ArgumentParser) -> list[str]:
+    """Every option string of ``parser`` and of its subcommands' parsers, for a misspelt option's suggestion."""
+    found: list[str] = []
+    for action in parser._actions:
+        found.extend(s for s in action.option_strings if s.startswith("--"))
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                found.extend(_option_strings(sub))
+    return sorted(set(found))
+
+
+class GonioParser(argparse.ArgumentParser):
+    """An ArgumentParser that suggests the closest subcommand, choice or option for a misspelt one."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        """Print usage and the message with a "did you mean" where one is close; exit 2."""
+        bad = re.search(r"invalid choice: '([^']*)'", message)
+        if bad:
+            choices = [str(c) for a in self._actions if a.choices for c in a.choices]
+            message += suggestion(bad.group(1), choices)
+        elif message.startswith("unrecognized arguments:"):
+            known = _option_strings(self)
+            for word in message.removeprefix("unrecognized arguments:").split():
+                hint = suggestion(word.split("=", 1)[0], known) if word.startswith("--") else ""
+                if hint:
+                    message += f" ({word}: {hint.removeprefix('; ')})"
+        super().error(message)
