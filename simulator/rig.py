@@ -89,6 +89,9 @@ class SimRigSpec:
         Ambient light reaching every pixel, in counts per second at gain 1 (not in dark frames).
     lamp_drift, lamp_warmup_s:
         A warming lamp: intensity times 1 + lamp_drift (1 - exp(-t / lamp_warmup_s)) at rig time t (s).
+    settle_ticks:
+        Each servo's load rests anywhere within this many encoder counts around its reading
+        (``simulator.dynamixel.faults.ServoMechanics.settle_ticks``; 1: a real servo).
     camera_output:
         "linear" (demosaiced counts), "raw" (a CFA mosaic) or "dng" (a mosaic written as a DNG file and read
         back through rawpy, the path a real camera's RAW files take); see ``simulator.camera.simulated``.
@@ -115,6 +118,7 @@ class SimRigSpec:
     stray_light_counts_s: float = 0.0
     lamp_drift: float = 0.0
     lamp_warmup_s: float = 600.0
+    settle_ticks: float = 0.0
     camera_output: Literal["linear", "raw", "dng"] = "linear"
     response: PixelResponse = field(default_factory=PixelResponse)
     dng_dir: Path | None = None
@@ -188,6 +192,8 @@ class SimulatedRig:
         at = self.start_pose()
         positions = {int(a.address): round(a.to_units(at[a.name])) for a in self.axes}
         bus = VirtualDynamixelBus(ids, self.spec.baudrate, self.clock, seed=self.spec.seed, positions=positions)
+        for i in ids:
+            bus.servo(i).mechanics.settle_ticks = self.spec.settle_ticks
         bus.start()
         self.bus = bus
 

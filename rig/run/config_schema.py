@@ -317,7 +317,9 @@ class Misalignment(Strict):
     ``sample_offset_mm`` (x tangent, y bitangent, z normal of the stage) off the arms' axis. The light is a
     disk of ``light_size_mm`` diameter (0: a point) whose irradiance falls by the fraction ``beam_falloff``
     at the edge of the lit spot; ``stray_light`` adds ambient counts per second to every pixel; the lamp
-    warms up by the fraction ``lamp_drift`` with time constant ``lamp_warmup_s`` of rig time.
+    warms up by the fraction ``lamp_drift`` with time constant ``lamp_warmup_s`` of rig time; each Dynamixel
+    joint comes to rest anywhere within ``joint_settle_ticks`` encoder counts around what its encoder reads
+    (1: a real servo, whose position loop cannot tell places within one count apart).
     See ``rig.instrument.alignment`` for the exact definitions.
     """
 
@@ -334,6 +336,7 @@ class Misalignment(Strict):
     stray_light: NonNeg = 0.0
     lamp_drift: Annotated[float, Field(gt=-0.9, lt=10, allow_inf_nan=False)] = 0.0
     lamp_warmup_s: Pos = 600.0
+    joint_settle_ticks: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] = 0.0
 
 
 class SimulatedSensor(Strict):

@@ -114,7 +114,20 @@ class ServoMechanics:
         Total play between the encoder and the load. The encoder does not see it: Present Position is
         unaffected, but ``VirtualServo.physical_position_ticks`` lags by half the play behind the
         direction of the last move, which is what a camera looking at the joint would see.
+    settle_ticks:
+        Width of the band the load comes to rest in around each goal (1.0: a real encoder's count, inside
+        which the position loop cannot tell one place from another). The encoder does not see it: the
+        load stands ``settle_offset(goal)`` off, a fixed draw per goal in [-settle_ticks / 2, settle_ticks / 2).
     """
 
     steady_state_error_ticks: float = 0.0
     backlash_ticks: float = 0.0
+    settle_ticks: float = 0.0
+
+    def settle_offset(self, servo_id: int, goal_ticks: int) -> float:
+        """Where the load rests relative to the encoder's reading after a move to ``goal_ticks`` (ticks)."""
+        if not self.settle_ticks:
+            return 0.0
+        # The same goal settles the same way (a resumed run sees the rig it left), different goals do not.
+        u = random.Random(servo_id * 1_000_003 + goal_ticks).random()
+        return (u - 0.5) * self.settle_ticks

@@ -145,10 +145,11 @@ class VirtualServo:
         return self.value("present_position")
 
     def physical_position_ticks(self) -> float:
-        """Where the load really is now (ticks): Present Position less half the backlash behind the last move."""
+        """Where the load really is now (ticks): Present Position, off by its settle, less half the backlash."""
         with self._lock:
             pos = self._state(self._clock.now()).position
-            return pos - self._last_direction * 0.5 * self.mechanics.backlash_ticks
+            settled = self.mechanics.settle_offset(self.id, self._values["goal_position"])
+            return pos + settled - self._last_direction * 0.5 * self.mechanics.backlash_ticks
 
     def place(self, position_ticks: float) -> None:
         """Turn the horn by hand to ``position_ticks`` (Present Position units); only with torque off."""

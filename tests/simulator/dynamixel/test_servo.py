@@ -288,6 +288,24 @@ def test_steady_state_error_and_backlash(servo: VirtualServo, clock: ManualClock
     assert servo.physical_position_ticks() == pytest.approx(1006 + 5)
 
 
+def test_a_load_settles_within_its_encoder_count_the_same_way_for_the_same_goal(
+    servo: VirtualServo, clock: ManualClock
+) -> None:
+    servo.mechanics.settle_ticks = 1.0
+    servo.write(64, b"\x01")
+    offsets = {}
+    for goal in (3000, 1000, 2500, 1800, 3000, 1000):
+        servo.write(116, u32(goal))
+        clock.advance(5.0)
+        assert servo.value("present_position") == goal  # the encoder cannot see where in the count it is
+        off = servo.physical_position_ticks() - goal
+        assert -0.5 <= off < 0.5
+        assert offsets.setdefault(goal, off) == off  # the same goal, the same rest
+    assert len(set(offsets.values())) == 4  # different goals, different rests
+    servo.mechanics.settle_ticks = 0.0
+    assert servo.physical_position_ticks() == 1000
+
+
 def test_stalled_servo_never_arrives(servo: VirtualServo, clock: ManualClock) -> None:
     servo.faults.stall_short_ticks = 40
     servo.write(64, b"\x01")
