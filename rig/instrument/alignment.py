@@ -186,6 +186,12 @@ def viewed_point(pose: RigPose) -> FloatArray:
     return out
 
 
+def light_distance_m(geometry: RigGeometry, joints: Joints, alignment: Alignment) -> float:
+    """Distance (m) from the light to the point the camera views, for reported joints in degrees on a real rig."""
+    pose = aligned_pose(geometry, joints, alignment)
+    return float(np.linalg.norm(np.asarray(pose.light_position_m) - viewed_point(pose)))
+
+
 def pose_directions(pose: RigPose) -> Directions:
     """The BRDF directions (degrees, local unit vectors) measured at the viewed point of a pose."""
     p = viewed_point(pose)

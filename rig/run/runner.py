@@ -32,7 +32,7 @@ import numpy as np
 from tqdm import tqdm
 
 from acquisition.frame import Camera
-from rig.instrument.alignment import Alignment, aligned_forward
+from rig.instrument.alignment import Alignment, aligned_forward, light_distance_m
 from rig.instrument.axis import Axis
 from rig.instrument.calibration_file import GeometryCalibration
 from rig.instrument.clock import Clock
@@ -296,7 +296,7 @@ class Runner:
             "theta_o_deg": _f(float(d.theta_o)), "phi_o_deg": _f(float(d.phi_o)),
             "joints_deg": {k: _f(float(v)) for k, v in actual.as_dict().items()},
             **self._reading_fields(reading), "image": image, **self._times(t0, t1),
-            **self._uncertainty(actual, after),
+            **self._uncertainty(actual, after), **self._distance(actual),
         })  # fmt: skip
         self._measured += 1
         if fault is not None:
@@ -321,6 +321,16 @@ class Runner:
         utc = datetime.datetime.now(datetime.UTC).isoformat(timespec="microseconds")
         return {"rig_time_s": self.clock.now(), "run_time_s": self.now(), "reading_time_s": 0.5 * (start + end),
                 "utc": utc}  # fmt: skip
+
+    def _distance(self, joints: Joints) -> dict[str, Any]:
+        """The light's distance (m) to the viewed point, where a calibrated sample offset moves it off the axis.
+
+        Irradiance falls as its inverse square, so the table scales each reading by (d / d_ref)^2; a rig
+        without a calibration journals none, and its table stays as it was.
+        """
+        if self.alignment.is_zero:
+            return {}
+        return {"light_distance_m": _f(light_distance_m(self.geometry, joints, self.alignment))}
 
     def _reading_fields(self, reading: Reading) -> dict[str, Any]:
         r = reading.roi
@@ -350,6 +360,7 @@ class Runner:
             "kind": "reference", "slot": slot, "theta_i_deg": ref.theta_i_deg, "theta_o_deg": ref.theta_o_deg,
             "joints_deg": {k: _f(float(v)) for k, v in held.as_dict().items()},
             "target": self.target.description, **self._reading_fields(reading), **self._times(t0, t1),
+            **self._distance(held),
         }  # fmt: skip
         if reading.roi.lower_bound:
             raise _CameraFailed("the reference reading saturated in every frame; lower the light or the exposure")

@@ -50,6 +50,7 @@ def _calibration(
         np.asarray(ref["reading"], dtype=float), np.asarray(ref["reading_std_error"], dtype=float),
         np.asarray(albedo, dtype=float), np.asarray(albedo_se, dtype=float), float(ref["theta_i_deg"]),
         float(ref["theta_o_deg"]), time_s=times[0], description="Lambertian reference",
+        light_distance_m=ref.get("light_distance_m"),
     )  # fmt: skip
     if nxt is not None:
         cal = cal.with_closing_reading(
@@ -107,6 +108,7 @@ def build_rows(
                 np.asarray(p["reading"], dtype=float), p["theta_i_deg"], p["theta_o_deg"],
                 std_error=np.asarray(p["reading_std_error"], dtype=float),
                 time_s=t, include_cosine=include_cosine,
+                light_distance_m=p.get("light_distance_m") if cal.light_distance_m is not None else None,
             )  # fmt: skip
             brdf, se, se_read = sample.value.tolist(), sample.std_error.tolist(), sample.std_error_readings.tolist()
         row: dict[str, Any] = {"index": p["index"]}
