@@ -17,6 +17,7 @@ from typing import Any
 
 from acquisition.exposure.spec import CameraTiming
 from rig.instrument.alignment import aligned_inverse
+from rig.instrument.axis import AxisLimitError
 from rig.instrument.calibration_file import GeometryCalibration
 from rig.instrument.kinematics import forward, inverse, require
 from rig.instrument.kinematics_types import UnreachableError
@@ -62,7 +63,9 @@ def reference_settings(rig: RigConfig) -> ReferenceSettings | None:
         if not rig.alignment.is_zero:
             d = forward(rig.geometry, joints)
             joints, _ = aligned_inverse(rig.geometry, d.wi, d.wo, rig.alignment)
-    except UnreachableError as exc:
+        for axis in rig.axes:  # the pose may be reachable by the geometry but outside an axis's limits
+            axis.check(float(joints.as_dict()[axis.name]))
+    except (UnreachableError, AxisLimitError) as exc:
         raise ConfigError(
             f"{rig.path}: [reference] theta_i_deg = {ref.theta_i_deg!r}, theta_o_deg = {ref.theta_o_deg!r}: "
             f"the reference pose is unreachable on this rig ({exc}); expected a pose the rig reaches"

@@ -118,3 +118,9 @@ def test_an_unreachable_reference_pose_names_the_file_and_the_table() -> None:
     rig = rig_config(parse(doc, RigFile, "lab-rig.toml"), "lab-rig.toml")
     with pytest.raises(ConfigError, match=r"lab-rig.toml: \[reference\] theta_i_deg = 0.0, theta_o_deg = 5.0: "):
         reference_settings(rig)
+
+
+@pytest.mark.parametrize("seed", [750, 1870])
+def test_a_reference_pose_outside_an_axis_limit_names_the_file(seed: int) -> None:
+    # Found by the 2,400-case fuzz: a tilt axis whose limits leave out 0 deg ended in an AxisLimitError.
+    assert check_case(seed) == ""
