@@ -118,7 +118,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="gonio-loaded-") as tmp:
         work = Path(tmp)
         anchor = gonio_run(args.anchor_points, work, "anchor")
-        print(f"anchor: {anchor}", flush=True)
+        print(f"anchor: exit {anchor.code}, {anchor.measured} points in {anchor.wall_s:.0f} s", flush=True)
         spinners = spin(args.spinners)
         try:
             loaded = gonio_run(args.points, work, "loaded")
@@ -126,7 +126,7 @@ def main() -> None:
             for p in spinners:
                 p.kill()
                 p.wait()
-        print(f"loaded: {loaded}", flush=True)
+        print(f"loaded: exit {loaded.code}, {loaded.measured} points in {loaded.wall_s:.0f} s", flush=True)
     per_anchor = anchor.wall_s / max(anchor.measured, 1)
     for label, r, extra in (("anchor", anchor, 0), ("loaded", loaded, args.spinners)):
         load, per = r.load, r.wall_s / max(r.measured, 1)
