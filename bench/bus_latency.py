@@ -86,7 +86,7 @@ def count_reads(port: sdk.PortHandler) -> list[int]:
         calls[0] += 1
         return original(length)
 
-    port.readPort = read  # type: ignore[method-assign]
+    port.readPort = read
     return calls
 
 
