@@ -103,6 +103,13 @@ def plan_exposure(
         ts = [t for t, n in frames.items() for _ in range(n)]
         return min(roi_snr(lv, noise, ts, gain, dark_frames) for lv in levels)
 
+    dimmest_first = sorted(levels, key=lambda lv: lv.mean_dn_per_s)
+
+    def reaches(frames: Frames) -> bool:
+        # snr_of(frames) >= target, stopping at the first channel short of it (the dimmest, mostly).
+        ts = [t for t, n in frames.items() for _ in range(n)]
+        return all(roi_snr(lv, noise, ts, gain, dark_frames) >= target for lv in dimmest_first)
+
     def guess(n: int) -> float | None:
         if any(lv.rates_dn_per_s for lv in levels):
             return None  # a pixel distribution clips in parts: no closed form
@@ -110,7 +117,7 @@ def plan_exposure(
         return max(t for t in ts if t is not None) if all(t is not None for t in ts) else None
 
     t_top, n_cap, limits = _longest_frame(levels, noise, cam, safety, dark_frames, max_frames, budget)
-    frames, reached, notes = _repeat_frames(snr_of, target, t_top, n_cap, max_frames, cam, limits, guess)
+    frames, reached, notes = _repeat_frames(snr_of, target, t_top, n_cap, max_frames, cam, limits, guess, reaches)
 
     expected_pixel: float | None = None
     if pixel_snr_target is not None or all(lv.dark_dn_per_s is not None for lv in levels):
@@ -212,18 +219,23 @@ def _longest_frame(
 def _repeat_frames(
     snr_of: Callable[[Frames], float], target: float, t_top: float, n_cap: int, max_frames: int,
     cam: CameraTiming, limits: list[str], guess: Callable[[int], float | None] = lambda n: None,
+    reaches: Callable[[Frames], bool] | None = None,
 ) -> tuple[Frames, bool, list[str]]:
-    """Repeat the longest frame until the ROI SNR reaches ``target``, then shorten them: (frames, reached, notes)."""
+    """Repeat the longest frame until the ROI SNR reaches ``target``, then shorten them: (frames, reached, notes).
+
+    ``reaches(frames)`` is ``snr_of(frames) >= target``, perhaps computed faster.
+    """
+    ok = reaches or (lambda fr: snr_of(fr) >= target)
     notes: list[str] = []
     n = 1
     if snr_of({t_top: 1}) == 0:
         notes.append("the ROI mean is 0 counts/s (or clips in every frame): no exposure gives it an SNR")
     else:
-        while n < n_cap and snr_of({t_top: n}) < target:
+        while n < n_cap and not ok({t_top: n}):
             n += 1
-    reached = snr_of({t_top: n}) >= target
+    reached = ok({t_top: n})
     if reached:
-        t = _shortest(lambda t: snr_of({t: n}) >= target, cam, t_top, guess(n))
+        t = _shortest(lambda t: ok({t: n}), cam, t_top, guess(n))
         frames: Frames = {t: n}
         if snr_of(frames) > 1.01 * target and t <= (cam.ceil(cam.min_exposure_s) or t) * (1 + 1e-9):
             above = snr_of(frames)
