@@ -7,11 +7,16 @@ below 1 says the software is faster than a real 1 Mbps line could be, so on hard
 USB adapter's latency timer) sets the pace, not this code.
 
 1. One SYNC_READ of Moving, Moving Status and Present Position (14 bytes) from 4 servos: through the raw
-   ``dynamixel_sdk`` GroupSyncRead, and through ``DynamixelBus.sync_read`` (lock, retries, error bytes).
+   ``dynamixel_sdk`` GroupSyncRead on the SDK's own port (zero read timeout: its receive loop spins, so a
+   loaded host loses replies, counted as "lost" rather than stopping the benchmark), and through
+   ``DynamixelBus.sync_read`` (reads that block in select(), lock, retries, error bytes).
 2. One full move-and-settle cycle of ``DynamixelLink`` (one SYNC_WRITE, then SYNC_READ polls every 10 ms
    of simulated time until all four axes are in position), on a ManualClock so the motion costs only its
    polls; its wire time is the SYNC_WRITE plus every poll's bytes.
 3. One GRBL status poll (``?`` -> ``<Idle|MPos:...>``) at 115200 baud, for comparison.
+
+Every exchange reports its spread (min, median, max of the timed repetitions), how many ``readPort`` calls
+the SDK made per transaction, and the load average, since the machine is usually shared.
 
 Run: ``.venv/bin/python -m bench.bus_latency [--reps N] [--no-docs]``.
 """
@@ -22,12 +27,11 @@ import argparse
 import datetime
 import statistics
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import dynamixel_sdk as sdk
 
-from bench._common import format_table, machine_description, markdown_table, timed_calls, write_section
+from bench._common import format_table, load_average, machine_description, markdown_table, timed_calls, write_section
 from rig.instrument.axis import Axis
 from rig.instrument.clock import ManualClock
 from rig.instrument.geometry import RigGeometry
@@ -66,10 +70,24 @@ def wire_s(n_bytes: int, baud: int) -> float:
     return n_bytes * BITS_PER_BYTE / baud
 
 
-def timings(fn: Callable[[], object], reps: int) -> tuple[float, float]:
-    """Median and 95th percentile wall-clock seconds of ``reps`` calls after 10 warm-up calls."""
-    samples = sorted(timed_calls(fn, reps, warmup=10))
-    return statistics.median(samples), samples[int(0.95 * (len(samples) - 1))]
+def spread(samples: list[float]) -> list[str]:
+    """Min, median and max of wall-clock ``samples`` (seconds) as table cells in milliseconds."""
+    if not samples:
+        return ["-", "-", "-"]
+    return [f"{min(samples) * 1e3:.3f}", f"{statistics.median(samples) * 1e3:.3f}", f"{max(samples) * 1e3:.3f}"]
+
+
+def count_reads(port: sdk.PortHandler) -> list[int]:
+    """Count ``port.readPort`` calls from now on (a one-element list that grows)."""
+    calls = [0]
+    original = port.readPort
+
+    def read(length: int) -> object:
+        calls[0] += 1
+        return original(length)
+
+    port.readPort = read
+    return calls
 
 
 def dynamixel_rows(reps: int) -> list[list[str]]:
@@ -85,22 +103,33 @@ def dynamixel_rows(reps: int) -> list[list[str]]:
         group = sdk.GroupSyncRead(port, ph, address, size)
         for i in IDS:
             group.addParam(i)
+        lost = 0
 
         def raw() -> None:
+            nonlocal lost
             if group.txRxPacket() != sdk.COMM_SUCCESS:
-                raise RuntimeError("raw SDK sync read failed")
+                lost += 1
+                port.clearPort()  # a late reply must not pass for the next one
 
-        med, p95 = timings(raw, reps)
+        timed_calls(raw, 10, warmup=0)
+        lost, calls = 0, count_reads(port)
+        samples = timed_calls(raw, reps, warmup=0)
         port.closePort()
-        rows.append(["SYNC_READ 4 x 14 B, raw dynamixel_sdk", f"{med * 1e3:.3f}", f"{p95 * 1e3:.3f}",
-                     f"{read_wire * 1e3:.3f}", f"{med / read_wire:.2f}", "1"])  # fmt: skip
+        med = statistics.median(samples)
+        rows.append(["SYNC_READ 4 x 14 B, raw dynamixel_sdk (spinning reads)", *spread(samples),
+                     f"{read_wire * 1e3:.3f}", f"{med / read_wire:.2f}", f"{calls[0] / reps:.1f}",
+                     f"{lost} of {reps}"])  # fmt: skip
 
         link = DynamixelLink.open(vbus.port, default_axes(RigGeometry()), clock=clock, latency_timer_ms=60.0,
                                   options=DynamixelOptions(poll_interval_s=0.01))  # fmt: skip
         try:
-            med, p95 = timings(lambda: link.bus.sync_read(address, size, list(IDS)), reps)
-            rows.append(["SYNC_READ 4 x 14 B, DynamixelBus", f"{med * 1e3:.3f}", f"{p95 * 1e3:.3f}",
-                         f"{read_wire * 1e3:.3f}", f"{med / read_wire:.2f}", "1"])  # fmt: skip
+            timed_calls(lambda: link.bus.sync_read(address, size, list(IDS)), 10, warmup=0)
+            retries, calls = link.bus.comm_retries_used, count_reads(link.bus._port)
+            samples = timed_calls(lambda: link.bus.sync_read(address, size, list(IDS)), reps, warmup=0)
+            med = statistics.median(samples)
+            rows.append(["SYNC_READ 4 x 14 B, DynamixelBus (blocking reads)", *spread(samples),
+                         f"{read_wire * 1e3:.3f}", f"{med / read_wire:.2f}", f"{calls[0] / reps:.1f}",
+                         f"0 of {reps} ({link.bus.comm_retries_used - retries} retried)"])  # fmt: skip
 
             polls = 0
             original = link.poll
@@ -115,6 +144,7 @@ def dynamixel_rows(reps: int) -> list[list[str]]:
             cycles: list[float] = []
             polls_per_cycle: list[int] = []
             settle_s: list[float] = []
+            calls[0] = 0
             for k in range(max(4, reps // 50)):
                 polls = 0
                 t_sim = clock.now()
@@ -128,8 +158,9 @@ def dynamixel_rows(reps: int) -> list[list[str]]:
             cycle_wire = wire_s(sync_write_bytes(len(IDS), 4), BAUD) + n_polls * read_wire
             med = statistics.median(cycles)
             rows.append([f"move and settle ({statistics.median(settle_s):.2f} s simulated, {n_polls:.0f} polls)",
-                         f"{med * 1e3:.2f}", f"{max(cycles) * 1e3:.2f}", f"{cycle_wire * 1e3:.2f}",
-                         f"{med / cycle_wire:.2f}", f"{n_polls:.0f}"])  # fmt: skip
+                         *[f"{float(c):.2f}" for c in spread(cycles)], f"{cycle_wire * 1e3:.2f}",
+                         f"{med / cycle_wire:.2f}", f"{calls[0] / sum(polls_per_cycle):.1f} per poll",
+                         "0"])  # fmt: skip
         finally:
             link.shutdown()
     return rows
@@ -145,14 +176,14 @@ def grbl_row(reps: int) -> list[str]:
         try:
             report = f"<Idle|MPos:{0:.3f},{0:.3f}|FS:0,0>\r\n"
             wire = wire_s(1 + len(report), GRBL_BAUD)
-            med, p95 = timings(link.status, max(50, reps // 4))
+            samples = timed_calls(link.status, max(50, reps // 4), warmup=10)
         finally:
             link.shutdown()
-    return ["GRBL status poll ? -> report", f"{med * 1e3:.3f}", f"{p95 * 1e3:.3f}", f"{wire * 1e3:.3f}",
-            f"{med / wire:.2f}", "1"]  # fmt: skip
+    med = statistics.median(samples)
+    return ["GRBL status poll ? -> report", *spread(samples), f"{wire * 1e3:.3f}", f"{med / wire:.2f}", "-", "0"]
 
 
-HEADERS = ["exchange", "median ms", "p95 ms", "wire ms (anchor)", "ratio", "round trips"]
+HEADERS = ["exchange", "min ms", "median ms", "max ms", "wire ms (anchor)", "ratio", "reads/transaction", "lost"]
 
 
 def main() -> None:
@@ -163,8 +194,10 @@ def main() -> None:
     args = parser.parse_args()
     machine = machine_description()
     today = datetime.date.today().isoformat()
+    load_before = load_average()
     rows = [*dynamixel_rows(args.reps), grbl_row(args.reps)]
-    print(f"# bus_latency, {today}\nMachine: {machine}\nDynamixel at {BAUD} baud, GRBL at {GRBL_BAUD} baud; "
+    load = f"{load_before} before, {load_average()} after"
+    print(f"# bus_latency, {today}\nMachine: {machine}; {load}\nDynamixel at {BAUD} baud, GRBL at {GRBL_BAUD} baud; "
           "ratio = measured median / wire time of the same bytes\n")  # fmt: skip
     print(format_table(HEADERS, rows))
     if not args.no_docs:
@@ -172,11 +205,13 @@ def main() -> None:
             "## Bus latency (`bench/bus_latency.py`)",
             "",
             f"Command: `.venv/bin/python -m bench.bus_latency --reps {args.reps}`. Run on {today}.",
-            f"Machine: {machine}.",
+            f"Machine: {machine}; shared with other work, {load}.",
             "",
             "Virtual buses on a pty, the real `dynamixel_sdk` and pyserial as clients. Anchor: the wire time of the "
             f"same packets at the line's baud rate (10 bits per byte, zero return delay). Dynamixel at {BAUD} baud, "
-            f"GRBL at {GRBL_BAUD}. A ratio below 1 means the software costs less than the line itself would.",
+            f"GRBL at {GRBL_BAUD}. A ratio below 1 means the software costs less than the line itself would. "
+            "reads/transaction: the SDK's `readPort` calls per transaction (the raw SDK's port spins with a zero "
+            "timeout; `DynamixelBus` waits in select()). lost: transactions without a valid reply.",
             "",
             markdown_table(HEADERS, rows),
         ])  # fmt: skip

@@ -45,14 +45,10 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from acquisition.exposure.snr import Frames, _dark_rate, _frames, _pixel_grid, pixel_snr, roi_snr
+from acquisition.exposure.bracket import _cost, _greedy_pixel, _prune
+from acquisition.exposure.snr import Frames, _dark_rate, _frames, _pixel_grid, exposure_for_snr, pixel_snr, roi_snr
 from acquisition.exposure.spec import CameraTiming, ExposureError, ExposurePlan, RoiLevel, _finite
 from acquisition.noise import SensorNoise
-
-
-def _cost(frames: Frames, overhead_s: float, dark_frames: int) -> float:
-    light = sum(n * (t + overhead_s) for t, n in frames.items())
-    return light + dark_frames * sum(t + overhead_s for t in frames)
 
 
 def plan_exposure(
@@ -107,8 +103,21 @@ def plan_exposure(
         ts = [t for t, n in frames.items() for _ in range(n)]
         return min(roi_snr(lv, noise, ts, gain, dark_frames) for lv in levels)
 
+    dimmest_first = sorted(levels, key=lambda lv: lv.mean_dn_per_s)
+
+    def reaches(frames: Frames) -> bool:
+        # snr_of(frames) >= target, stopping at the first channel short of it (the dimmest, mostly).
+        ts = [t for t, n in frames.items() for _ in range(n)]
+        return all(roi_snr(lv, noise, ts, gain, dark_frames) >= target for lv in dimmest_first)
+
+    def guess(n: int) -> float | None:
+        if any(lv.rates_dn_per_s for lv in levels):
+            return None  # a pixel distribution clips in parts: no closed form
+        ts = [exposure_for_snr(lv, noise, target, n, gain, dark_frames) for lv in levels]
+        return max(t for t in ts if t is not None) if all(t is not None for t in ts) else None
+
     t_top, n_cap, limits = _longest_frame(levels, noise, cam, safety, dark_frames, max_frames, budget)
-    frames, reached, notes = _repeat_frames(snr_of, target, t_top, n_cap, max_frames, cam, limits)
+    frames, reached, notes = _repeat_frames(snr_of, target, t_top, n_cap, max_frames, cam, limits, guess, reaches)
 
     expected_pixel: float | None = None
     if pixel_snr_target is not None or all(lv.dark_dn_per_s is not None for lv in levels):
@@ -209,19 +218,24 @@ def _longest_frame(
 
 def _repeat_frames(
     snr_of: Callable[[Frames], float], target: float, t_top: float, n_cap: int, max_frames: int,
-    cam: CameraTiming, limits: list[str],
+    cam: CameraTiming, limits: list[str], guess: Callable[[int], float | None] = lambda n: None,
+    reaches: Callable[[Frames], bool] | None = None,
 ) -> tuple[Frames, bool, list[str]]:
-    """Repeat the longest frame until the ROI SNR reaches ``target``, then shorten them: (frames, reached, notes)."""
+    """Repeat the longest frame until the ROI SNR reaches ``target``, then shorten them: (frames, reached, notes).
+
+    ``reaches(frames)`` is ``snr_of(frames) >= target``, perhaps computed faster.
+    """
+    ok = reaches or (lambda fr: snr_of(fr) >= target)
     notes: list[str] = []
     n = 1
     if snr_of({t_top: 1}) == 0:
         notes.append("the ROI mean is 0 counts/s (or clips in every frame): no exposure gives it an SNR")
     else:
-        while n < n_cap and snr_of({t_top: n}) < target:
+        while n < n_cap and not ok({t_top: n}):
             n += 1
-    reached = snr_of({t_top: n}) >= target
+    reached = ok({t_top: n})
     if reached:
-        t = _shortest(lambda t: snr_of({t: n}) >= target, cam, t_top)
+        t = _shortest(lambda t: ok({t: n}), cam, t_top, guess(n))
         frames: Frames = {t: n}
         if snr_of(frames) > 1.01 * target and t <= (cam.ceil(cam.min_exposure_s) or t) * (1 + 1e-9):
             above = snr_of(frames)
@@ -242,103 +256,36 @@ def _repeat_frames(
     return frames, reached, notes
 
 
-def _shortest(ok: Callable[[float], bool], cam: CameraTiming, t_hi: float) -> float:
-    """Shortest available exposure in [min, t_hi] seconds for which ok(t) holds (ok is monotone, ok(t_hi))."""
+def _shortest(ok: Callable[[float], bool], cam: CameraTiming, t_hi: float, guess: float | None = None) -> float:
+    """Shortest available exposure in [min, t_hi] seconds for which ok(t) holds (ok is monotone, ok(t_hi)).
+
+    ``guess`` is an estimate of the boundary in seconds (a closed form); it only narrows the search.
+    """
     lo = cam.ceil(cam.min_exposure_s) or t_hi
     if ok(lo):
         return lo
     a, b = math.log(lo), math.log(t_hi)
+    if guess is not None and lo < guess < t_hi:
+        # With ok monotone the halvings below end on the same two neighbouring floats from any bracket of
+        # the boundary, so a tight one around the estimate gives the same answer in ~25 halvings, not ~55.
+        a0, b0 = math.log(guess * (1 - 1e-9)), math.log(guess * (1 + 1e-9))
+        if a < a0 and b0 < b and not ok(math.exp(a0)) and ok(math.exp(b0)):
+            a, b = a0, b0
+    # Halve until the midpoint rounds onto an end (about 55 halvings of a 1e-5..30 s range): from there on
+    # a halving changes nothing, except that a start `a` which passes moves `b` onto it. So this is the
+    # same boundary, to the last bit, that 100 halvings reach.
     for _ in range(100):
         m = 0.5 * (a + b)
+        if m == a or m == b:
+            if m == a and ok(math.exp(a)):
+                b = a
+            break
         if ok(math.exp(m)):
             b = m
         else:
             a = m
     t = cam.ceil(math.exp(b))
     return t if t is not None and t <= t_hi and ok(t) else t_hi
-
-
-def _prune(frames: Frames, ok: Callable[[Frames], bool]) -> Frames:
-    """Drop frames, longest first, while ``ok`` still holds: the greedy additions can make earlier ones spare."""
-    frames = dict(frames)
-    for t in sorted(frames, reverse=True) + sorted(frames):
-        while frames.get(t, 0) > 0:
-            trial = dict(frames)
-            trial[t] -= 1
-            if trial[t] == 0:
-                del trial[t]
-            if not trial or not ok(trial):
-                break
-            frames = trial
-    return frames
-
-
-def _greedy_pixel(
-    frames: Frames,
-    worst: Callable[[Frames], tuple[float, float]],
-    ladder: Sequence[float],
-    target: float,
-    limit_dn: float,
-    dark_rate: float,
-    overhead_s: float,
-    dark_frames: int,
-    max_frames: int,
-    budget: float,
-    noise: SensorNoise,
-    gain: float,
-) -> tuple[Frames, bool]:
-    """Add frames until the worst pixel of the ROI reaches ``target`` per-pixel SNR.
-
-    Each round looks at the worst pixel: if k repeats of one ladder exposure bring it to the target, the
-    cheapest such (t, k) in capture seconds (dark frames of a new exposure included; within 5 % of the
-    cheapest, the fewest frames) is added; otherwise
-    the single frame that buys it the most SNR^2 per second. Adding frames never lowers another pixel's
-    SNR much, so the worst pixel moves on until all reach the target or the limits stop it.
-    """
-    frames = dict(frames)
-
-    def snr_with(t: float, k: int) -> float:
-        trial = dict(frames)
-        trial[t] = trial.get(t, 0) + k
-        ts = [x for x, m in trial.items() for _ in range(m)]
-        return float(pixel_snr(r_w, noise, ts, gain, dark_frames))
-
-    while True:
-        snr_w, r_w = worst(frames)
-        if snr_w >= target:
-            return frames, True
-        room = max_frames - sum(frames.values())
-        if room <= 0:
-            return frames, False
-        base_cost = _cost(frames, overhead_s, dark_frames)
-        best: tuple[float, float] | None = None  # (SNR^2 per second, exposure) of one added frame
-        enough: list[tuple[float, int, float]] = []  # (added seconds, k, exposure) of k frames that suffice
-        for t in ladder:
-            if (r_w * gain + dark_rate) * t > limit_dn:
-                continue  # this frame would clip (or nearly) the worst pixel: no help to it
-            new_dark = 0 if t in frames else dark_frames
-            for k in range(1, room + 1):
-                added = (k + new_dark) * (t + overhead_s)
-                if base_cost + added > budget:
-                    break
-                new_snr = snr_with(t, k)
-                if k == 1:
-                    score = (new_snr**2 - snr_w**2) / added
-                    if best is None or score >= best[0]:
-                        best = (score, t)
-                if new_snr >= target:
-                    enough.append((added, k, t))
-                    break
-        if enough:
-            # Shot-limited frames cost about the same per photon at any length: within 5 % of the cheapest,
-            # take the fewest frames (less readout, less read noise, a shorter journal).
-            cheapest = min(e[0] for e in enough)
-            _, k, t = min((e for e in enough if e[0] <= 1.05 * cheapest), key=lambda e: (e[1], e[0]))
-            frames[t] = frames.get(t, 0) + k
-        elif best is not None and best[0] > 0:
-            frames[best[1]] = frames.get(best[1], 0) + 1
-        else:
-            return frames, False
 
 
 def evaluate_plan(

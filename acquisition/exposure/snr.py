@@ -73,13 +73,60 @@ def roi_snr(
     else:
         dr = _dark_rate(noise, gain)
         frames = {t: n for t, n in frames.items() if (level.peak_dn_per_s * gain + dr) * t <= sat}
-        r = np.array([level.mean_dn_per_s])
-        w = np.array([1.0])
+        return _mean_level_snr(level, frames, noise, gain, dark_frames, sat, dr)
     var = _merged_variance(r, frames, noise, gain, dark_frames, sat)
     if not np.all(np.isfinite(var[w > 0])):
         return 0.0  # part of the ROI clips in every frame: the mean is not measurable
     var_mean = float(np.sum(w * var)) / level.n_pixels
     return level.mean_dn_per_s / math.sqrt(var_mean)
+
+
+def _mean_level_snr(
+    level: RoiLevel, frames: Frames, noise: SensorNoise, gain: float, dark_frames: int, sat: float, dr: float
+) -> float:
+    """``roi_snr`` at the mean level alone, in Python floats: the planner's bisection calls it ~150 times a plan.
+
+    The same operations in the same order as ``_merged_variance`` on a one-element array, so the same bits
+    (IEEE arithmetic and sqrt are correctly rounded in numpy and in Python alike), at a tenth of the cost.
+    """
+    rg = level.mean_dn_per_s * gain
+    g = noise.e_per_dn / gain
+    read = noise.read_noise_e**2
+    num = total_t = 0.0
+    for t, n in frames.items():
+        if (rg + dr) * t > sat:
+            continue
+        dark_e = noise.dark_current_e_per_s * t
+        var = n * (max(rg * t, 0.0) / g + (read + dark_e) / g**2 + 1.0 / 12.0)
+        if dark_frames:
+            var = var + n * n * (0.0 / g + (read + dark_e) / g**2 + 1.0 / 12.0) / dark_frames
+        num += var
+        total_t += n * t
+    if total_t <= 0:
+        return 0.0  # the mean clips in every frame: not measurable
+    gt = gain * total_t
+    return level.mean_dn_per_s / math.sqrt(num / (gt * gt) / level.n_pixels)
+
+
+def exposure_for_snr(
+    level: RoiLevel, noise: SensorNoise, target_snr: float, n: int, gain: float = 1.0, dark_frames: int = 0
+) -> float | None:
+    """Exposure in seconds at which ``n`` equal frames give the ROI mean ``target_snr``, if nothing clips.
+
+    ``roi_snr`` at the mean level solved for t: (g n t m)^2 n_px = S^2 (n V(t) + n^2 D(t) / n_d), with the
+    frame variance V and the master dark's D both linear in t, is a quadratic. None for a dark ROI.
+    """
+    m = level.mean_dn_per_s
+    if not m > 0 or not n >= 1:
+        return None
+    g = noise.e_per_dn / gain
+    dark = noise.dark_current_e_per_s / g**2  # counts^2 per second of dark shot noise
+    floor = noise.read_noise_e**2 / g**2 + 1.0 / 12.0
+    s2 = target_snr * target_snr
+    quad = (gain * n * m) ** 2 * level.n_pixels
+    lin = s2 * (n * (m * gain / g + dark) + (n * n * dark / dark_frames if dark_frames else 0.0))
+    const = s2 * (n * floor + (n * n * floor / dark_frames if dark_frames else 0.0))
+    return (lin + math.sqrt(lin * lin + 4.0 * quad * const)) / (2.0 * quad)
 
 
 def pixel_snr(

@@ -14,6 +14,11 @@ Faults: a move that times out is re-issued once; a capture that fails is retried
 from the link (a servo fault, a dead bus) or a second failure stops the run. Ctrl-C stops it too. In every
 case the axes are stopped and the link shut down by the torque policy (``torque_off`` or ``hold``), the
 journal keeps everything measured, and the run's status says why it stopped.
+
+Progress: the merge kernels are loaded (compiled on a first run) as a step before the first point, and the
+bar's ETA (``rig.run.progress``) leaves the first point's one-time costs out. The file stays whole past 400
+lines: the loop, its fault handling and its records are one sequence; what stands alone (camera deadlines,
+motion guard, progress, warm-up) lives beside it.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ import math
 import sys
 import time
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -45,10 +50,12 @@ from rig.run.journal import check_records
 from rig.run.measure import CaptureSettings, Level, Reading, take_reading
 from rig.run.motion_guard import MotionGuard
 from rig.run.plan import Plan, PlannedPoint
+from rig.run.progress import Eta, format_eta
 from rig.run.reference import ReferenceTarget
 from rig.run.store import JOURNAL, RunStore
 from rig.run.table import build_rows
 from rig.run.table_parquet import write_beside
+from rig.run.warm_up import COMPILING, kernels_cached, warm_up
 
 TorquePolicy = Literal["torque_off", "hold"]
 
@@ -130,6 +137,7 @@ class Runner:
         options: RunOptions | None = None,
         calibration: GeometryCalibration | None = None,
         axes: Sequence[Axis] = (),
+        wall_clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if reference is not None and target is None:
             raise ValueError("a reference schedule needs a ReferenceTarget to put the tile in view")
@@ -149,6 +157,11 @@ class Runner:
         if reference is not None:
             allowed.append(reference.joints)
         self.guard = MotionGuard(plan.paths, allowed)
+        #: Time to go, in wall seconds (the progress bar's), without the first point's one-time costs.
+        self.eta = Eta(wall_clock)
+        #: Wall seconds the kernel warm-up took before the first point (0 if nothing was left to measure).
+        self.warm_up_s = 0.0
+        self._wall = wall_clock
 
     # -- run time -------------------------------------------------------------------------------------
     def now(self) -> float:
@@ -192,8 +205,13 @@ class Runner:
         # The plan holds the reference schedule, so its time estimate and the run agree on it.
         slots = set(self.plan.reference_before) if self.reference else set()
         last_ref = max(ref_done.values(), key=lambda r: r["slot"]) if ref_done else None
+        if len(done) < len(self.plan.points):
+            self._warm_up()
+        # tqdm's own rate would count the first point's one-time costs: the bar shows ours instead.
         bar = tqdm(total=len(self.plan.points), initial=len(done), unit="pt", disable=not self.options.progress,
-                   file=sys.stderr, dynamic_ncols=True)  # fmt: skip
+                   file=sys.stderr, dynamic_ncols=True,
+                   bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")  # fmt: skip
+        self.eta.start(len(self.plan.points) - len(done))
         try:
             for pos, point in enumerate(self.plan.points):
                 if pos in slots and pos not in ref_done and point.index not in done:
@@ -202,8 +220,10 @@ class Runner:
                     continue
                 reading = self._point(pos, point, level)
                 level = reading.level
+                self.eta.point_done()
+                bar.set_postfix_str(f"{format_eta(self.eta.remaining_s())}, {self._postfix(point, reading)}",
+                                    refresh=False)  # fmt: skip
                 bar.update(1)
-                bar.set_postfix_str(self._postfix(point, reading), refresh=False)
             end = len(self.plan.points)
             if end in slots and end not in ref_done:
                 self._reference(end, last_ref)
@@ -227,6 +247,14 @@ class Runner:
             self._shutdown()
         return RunSummary(self._measured, len(done), self._references, self._drift, str(table),
                           self.clock.now() - started)  # fmt: skip
+
+    def _warm_up(self) -> None:
+        """Load the merge kernels (compile them on a first run) as a step of its own, before the first point."""
+        if self.options.progress and not kernels_cached():
+            print(COMPILING, file=sys.stderr, flush=True)
+        t0 = self._wall()
+        warm_up(self.capture.noise)
+        self.warm_up_s = self._wall() - t0
 
     def _postfix(self, point: PlannedPoint, reading: Reading) -> str:
         ti, _, to, _ = point.directions_deg

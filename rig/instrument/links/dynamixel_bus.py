@@ -19,6 +19,7 @@ A port that fails at the OS level (EIO: cable or adapter pulled) is a ``LinkErro
 
 from __future__ import annotations
 
+import select
 import termios
 import threading
 import time
@@ -93,11 +94,17 @@ def check_baudrate(baudrate: int) -> int:
 
 
 class _PortHandler(sdk.PortHandler):
-    """The SDK's port handler with the reply timeout's latency term set per port instead of per module.
+    """The SDK's port handler with the reply timeout's latency term set per port, and reads that block.
 
     The SDK waits ``tx time + 2 x LATENCY_TIMER + 2`` ms for a reply, with LATENCY_TIMER a module constant
     of 16 ms (the FTDI default). Adapters set to 1 ms deserve a shorter wait, and a loaded host talking to
     the virtual bus a longer one, without patching the SDK for every other user in the process.
+
+    The SDK opens the port with a zero read timeout and spins in ``rxPacket`` calling ``readPort`` until
+    the reply is complete: ~260 empty reads per transaction, holding the GIL against whatever produces the
+    reply (the virtual bus's thread) and losing replies on a loaded host. Here ``readPort`` waits in
+    select() for the first byte, for at most what is left of the packet timeout, so the SDK's loop runs
+    once per chunk of the reply and its timeout logic is unchanged.
     """
 
     def __init__(self, port_name: str, latency_timer_ms: float) -> None:
@@ -113,6 +120,15 @@ class _PortHandler(sdk.PortHandler):
     def setPacketTimeoutMillis(self, msec: float) -> None:
         self.packet_start_time = self.getCurrentTime()
         self.packet_timeout = msec * self.timeout_scale
+
+    def readPort(self, length: int) -> bytes:
+        """Up to ``length`` bytes, waiting for the first for at most the rest of the packet timeout."""
+        if length <= 0:
+            return b""  # the SDK asks for 0 bytes when a header it just parsed completes the packet
+        left_ms = self.packet_timeout - self.getTimeSinceStart()
+        if left_ms > 0:
+            select.select([self.ser.fileno()], [], [], left_ms / 1000.0)
+        return bytes(self.ser.read(length))
 
 
 # What a port that fails at the OS level raises: termios.error (tcflush, tcsetattr) is not an OSError.
@@ -267,18 +283,14 @@ class DynamixelBus:
         quiet_s = (2.0 * self._port.latency_timer_ms + 2.0) / 1000.0
         try:
             self._port.clearPort()
-            last = time.monotonic()
-            limit = last + 20 * quiet_s  # a line that never goes quiet is noise; the retry's CRC check handles it
+            # A line that never goes quiet is noise: stop after a while, the retry's CRC check handles it.
+            limit = time.monotonic() + 20 * quiet_s
+            fd = self._port.ser.fileno()
             while True:
-                now = time.monotonic()
-                if now - last >= quiet_s or now >= limit:
-                    return
-                waiting = self._port.getBytesAvailable()
-                if waiting:
-                    self._port.readPort(waiting)
-                    last = time.monotonic()
-                else:
-                    time.sleep(min(quiet_s / 4, 0.002))
+                left = min(quiet_s, limit - time.monotonic())
+                if left <= 0 or not select.select([fd], [], [], left)[0]:
+                    return  # quiet for quiet_s (or noisy for too long)
+                self._port.ser.read(max(self._port.getBytesAvailable(), 1))
         except _PORT_FAILURES as exc:
             self._abandoned = True
             where = self.port_name

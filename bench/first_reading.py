@@ -1,0 +1,127 @@
+"""How soon ``gonio run`` delivers its first reading, on a cold kernel cache and on a warm one.
+
+``gonio run`` on the simulated rig for a few points, timed from launch to the first record in the journal (the
+reference reading taken before the first point) and to the first point, with the journal polled every
+10 ms. Cold: fresh numba and Dr.Jit caches (``NUMBA_CACHE_DIR`` and ``HOME``, where Dr.Jit keeps its kernel
+cache, point at empty directories), so every kernel compiles; warm: the same command again on those
+caches. Goal: the first reading within 2 s on a warm cache. Anchor, measured in the same run: the start-up of
+a bare interpreter importing numpy (what any Python tool pays before doing anything).
+
+Run: ``.venv/bin/python -m bench.first_reading [--no-docs]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from bench._common import format_table, load_average, machine_description, markdown_table, write_section
+
+DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
+RIG = Path(__file__).resolve().parent.parent / "examples" / "rig_simulated.toml"
+GOAL_S = 2.0
+SWEEP = """name = "first reading"
+[sweep]
+kind = "grid"
+theta_i_deg = [15.0, 45.0]
+theta_o_deg = [20.0, 40.0]
+phi_o_deg = [180.0]
+isotropic = true
+[capture]
+target_snr = 100.0
+"""
+
+
+def first_records(journal: Path) -> set[str]:
+    """Kinds of the records in ``journal`` so far (none for an absent file)."""
+    if not journal.exists():
+        return set()
+    kinds: set[str] = set()
+    for line in journal.read_text().splitlines():
+        try:
+            kinds.add(str(json.loads(line).get("kind", "?")))
+        except json.JSONDecodeError:
+            break  # a line being written
+    return kinds
+
+
+def timed_run(work: Path, name: str, env: dict[str, str]) -> dict[str, float | str]:
+    """Launch ``gonio run``; seconds to the first record, to the first point and to the end; the stderr."""
+    sweep = work / "sweep.toml"
+    sweep.write_text(SWEEP)
+    out = work / name
+    cmd = [sys.executable, "-m", "gonio.cli", "run", str(sweep), "--rig", str(RIG), "--out", str(out)]
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    seen: dict[str, float] = {}
+    while proc.poll() is None:
+        for kind in first_records(out / "journal.jsonl"):
+            seen.setdefault(kind, time.perf_counter() - t0)
+        time.sleep(0.01)  # a benchmark's poll of a file, not a test waiting on hardware
+    total = time.perf_counter() - t0
+    err = proc.stderr.read() if proc.stderr else ""
+    if proc.returncode != 0:
+        raise RuntimeError(f"gonio run failed ({proc.returncode}): {err[-2000:]}")
+    for kind in first_records(out / "journal.jsonl"):
+        seen.setdefault(kind, total)
+    first = min((seen[k] for k in ("reference", "point") if k in seen), default=total)
+    return {"first": first, "point": seen.get("point", total), "total": total, "stderr": err}
+
+
+def interpreter_start(env: dict[str, str]) -> float:
+    """Seconds for ``python -c 'import numpy'``: the floor any Python command starts from."""
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "import numpy"], env=env, check=True)
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    """Measure cold and warm, print and record."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/benchmarks.md")
+    args = parser.parse_args()
+    machine = machine_description()
+    print(machine, flush=True)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="gonio-first-") as tmp:
+        work = Path(tmp)
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(work / "numba"), HOME=str(work / "home"))
+        (work / "home").mkdir()
+        anchor = interpreter_start(env)
+        for label in ("cold", "warm"):
+            load = load_average()
+            r = timed_run(work, label, env)
+            compiling = "compiling kernels (first run only)" in str(r["stderr"])
+            rows.append([label, f"{float(r['first']):.1f}", f"{float(r['point']):.1f}", f"{float(r['total']):.1f}",
+                         "yes" if compiling else "no", f"{float(r['first']) / GOAL_S:.2f}",
+                         f"{float(r['first']) / anchor:.1f}", load])  # fmt: skip
+            print(rows[-1], flush=True)
+    head = ["cache", "first reading (s)", "first point (s)", "whole run (s)", "'compiling kernels' shown",
+            f"ratio to {GOAL_S:g} s goal", "ratio to anchor", "load before"]  # fmt: skip
+    print(f"anchor: `python -c 'import numpy'` took {anchor:.2f} s")
+    print(format_table(head, rows))
+    if args.no_docs:
+        return
+    body = "\n".join([
+        "## First reading (`bench/first_reading.py`)", "",
+        f"Command: `.venv/bin/python -m bench.first_reading`. Run on {datetime.date.today()}.",
+        f"Machine: {machine}, shared with other work (load averages in the table).", "",
+        "`gonio run` of 4 points on the simulated rig (`examples/rig_simulated.toml`), from launch to the first "
+        "journal record (the reference reading before the first point) and to the first point. Cold: empty "
+        "numba and Dr.Jit kernel caches; warm: the same caches after the cold run. Anchor: "
+        f"`python -c 'import numpy'` in the same environment, {anchor:.2f} s.", "",
+        markdown_table(head, rows),
+    ])  # fmt: skip
+    write_section(DOCS, "first_reading", body)
+    print(f"\nSection 'first_reading' written to {DOCS}")
+
+
+if __name__ == "__main__":
+    main()

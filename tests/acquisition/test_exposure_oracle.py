@@ -1,0 +1,144 @@
+"""The fast exposure planner makes exactly the plans of the original one, kept here as the oracle.
+
+The original searched the shortest exposure with a fixed 100-step bisection in log time and evaluated every
+step with the numpy ``roi_snr``; the planner now stops the bisection where it stalls, starts it from a
+closed-form bracket and evaluates a mean level in Python floats. Every plan of a grid of levels, targets,
+cameras and options must come out identical, to the bit.
+"""
+
+import itertools
+import math
+import re
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import pytest
+
+from acquisition.exposure import plan as plan_module
+from acquisition.exposure.plan import plan_exposure
+from acquisition.exposure.snr import _dark_rate, _frames, _merged_variance, exposure_for_snr, roi_snr
+from acquisition.exposure.spec import CameraTiming, ExposureError, ExposurePlan, RoiLevel
+from acquisition.noise import SensorNoise
+
+
+def oracle_roi_snr(
+    level: RoiLevel, noise: SensorNoise, exposures_s: Sequence[float], gain: float = 1.0, dark_frames: int = 0
+) -> float:
+    """The original roi_snr: every level through the numpy merge variance."""
+    frames = _frames(exposures_s)
+    sat = noise.saturation_dn(gain)
+    if level.mean_dn_per_s == 0:
+        return 0.0
+    if level.rates_dn_per_s:
+        r = np.asarray(level.rates_dn_per_s, dtype=float)
+        w = np.asarray(level.weights, dtype=float)
+    else:
+        dr = _dark_rate(noise, gain)
+        frames = {t: n for t, n in frames.items() if (level.peak_dn_per_s * gain + dr) * t <= sat}
+        r = np.array([level.mean_dn_per_s])
+        w = np.array([1.0])
+    var = _merged_variance(r, frames, noise, gain, dark_frames, sat)
+    if not np.all(np.isfinite(var[w > 0])):
+        return 0.0
+    var_mean = float(np.sum(w * var)) / level.n_pixels
+    return level.mean_dn_per_s / math.sqrt(var_mean)
+
+
+def oracle_shortest(ok: Callable[[float], bool], cam: CameraTiming, t_hi: float, guess: float | None = None) -> float:
+    """The original search: 100 halvings in log time, whatever the estimate."""
+    lo = cam.ceil(cam.min_exposure_s) or t_hi
+    if ok(lo):
+        return lo
+    a, b = math.log(lo), math.log(t_hi)
+    for _ in range(100):
+        m = 0.5 * (a + b)
+        if ok(math.exp(m)):
+            b = m
+        else:
+            a = m
+    t = cam.ceil(math.exp(b))
+    return t if t is not None and t <= t_hi and ok(t) else t_hi
+
+
+def oracle_plan(monkeypatch: pytest.MonkeyPatch, *args: object, **kwargs: object) -> ExposurePlan:
+    with monkeypatch.context() as m:
+        m.setattr(plan_module, "_shortest", oracle_shortest)
+        m.setattr(plan_module, "roi_snr", oracle_roi_snr)
+        return plan_exposure(*args, **kwargs)  # type: ignore[arg-type]
+
+
+NOISES = [SensorNoise(), SensorNoise(e_per_dn=1.5, read_noise_e=12.0, full_well_e=20000.0, dark_current_e_per_s=40.0)]
+CAMERAS = [
+    CameraTiming(1e-5, 30.0),
+    CameraTiming(1e-4, 2.0, gain=4.0, overhead_s=0.05),
+    CameraTiming(1e-5, 30.0, steps=tuple(2.0 ** (k / 3) * 1e-5 for k in range(70))),
+]
+
+
+def level_grid() -> list[list[RoiLevel]]:
+    """ROI levels from 1 to 1e7 counts/s: one grey level, three channels (one near dark), a distribution."""
+    grid: list[list[RoiLevel]] = []
+    for peak, n_px in itertools.product(np.geomspace(1.0, 1e7, 9), (1, 400)):
+        p = float(peak)
+        grid.append([RoiLevel(p, 0.7 * p, n_px)])
+        grid.append([RoiLevel(p, 0.9 * p, n_px, 0.4 * p), RoiLevel(p, 0.5 * p, n_px, 0.2 * p),
+                     RoiLevel(p, 0.02 * p, n_px, 0.01 * p)])  # fmt: skip
+        grid.append([RoiLevel(p, 0.55 * p, n_px, 0.1 * p, (0.1 * p, 0.5 * p, p), (0.25, 0.5, 0.25))])
+    return grid
+
+
+#: (target ROI SNR, dark frames, max_total_s); each level meets one in turn (the oracle costs ~25 ms a plan).
+OPTIONS = [(50.0, 0, None), (400.0, 0, None), (1000.0, 2, None), (300.0, 0, 1.5), (5000.0, 1, None)]
+
+
+@pytest.mark.parametrize("noise", NOISES, ids=["default", "noisy"])
+@pytest.mark.parametrize("cam", CAMERAS, ids=["continuous", "gain4", "stepped"])
+def test_plans_equal_the_original_planners(
+    monkeypatch: pytest.MonkeyPatch, noise: SensorNoise, cam: CameraTiming
+) -> None:
+    compared = 0
+    for i, levels in enumerate(level_grid()):
+        target, dark_frames, budget = OPTIONS[i % len(OPTIONS)]
+        kwargs = {"dark_frames": dark_frames, "max_frames": 16, "max_total_s": budget}
+        try:
+            expected = oracle_plan(monkeypatch, levels, noise, target, cam, **kwargs)
+        except ExposureError as exc:
+            with pytest.raises(ExposureError, match=re.escape(str(exc))):
+                plan_exposure(levels, noise, target, cam, **kwargs)  # type: ignore[arg-type]
+            continue
+        got = plan_exposure(levels, noise, target, cam, **kwargs)  # type: ignore[arg-type]
+        assert got == expected, (levels, target, dark_frames, budget)
+        compared += 1
+    assert compared >= 40  # most of the grid plans something (the brightest levels saturate some cameras)
+
+
+def test_pixel_snr_target_plans_equal_the_original(monkeypatch: pytest.MonkeyPatch) -> None:
+    noise = NOISES[0]
+    for levels in level_grid()[1::6]:
+        expected = oracle_plan(monkeypatch, levels, noise, 200.0, CAMERAS[0], pixel_snr_target=20.0, max_frames=24)
+        assert plan_exposure(levels, noise, 200.0, CAMERAS[0], pixel_snr_target=20.0, max_frames=24) == expected
+
+
+@pytest.mark.parametrize("dark_frames", [0, 1, 3])
+@pytest.mark.parametrize("n", [1, 2, 7])
+def test_exposure_for_snr_reaches_the_target_exactly(dark_frames: int, n: int) -> None:
+    noise = NOISES[1]
+    for mean, n_px, gain in itertools.product((3.0, 400.0, 2e5), (1, 25), (1.0, 4.0)):
+        level = RoiLevel(mean, mean, n_px)
+        t = exposure_for_snr(level, noise, 150.0, n, gain, dark_frames)
+        assert t is not None
+        # Far below saturation the closed form is the root of roi_snr itself (its clipping check aside).
+        big = SensorNoise(e_per_dn=noise.e_per_dn, read_noise_e=noise.read_noise_e, full_well_e=1e30,
+                          dark_current_e_per_s=noise.dark_current_e_per_s, white_level_dn=1e30)  # fmt: skip
+        assert roi_snr(level, big, [t] * n, gain, dark_frames) == pytest.approx(150.0, rel=1e-9)
+    assert exposure_for_snr(RoiLevel(5.0, 0.0, 4), noise, 100.0, 1) is None
+
+
+def test_scalar_mean_level_snr_matches_the_numpy_merge_bit_for_bit() -> None:
+    rng = np.random.default_rng(3)
+    for noise, _ in itertools.product(NOISES, range(40)):
+        peak = float(10 ** rng.uniform(0, 6))
+        level = RoiLevel(peak, peak * float(rng.uniform(0.01, 1)), int(rng.integers(1, 500)))
+        ts = list(10 ** rng.uniform(-5, 0, size=int(rng.integers(1, 5))))
+        gain, darks = float(rng.choice([1.0, 2.5])), int(rng.integers(0, 3))
+        assert roi_snr(level, noise, ts, gain, darks) == oracle_roi_snr(level, noise, ts, gain, darks)
