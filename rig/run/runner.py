@@ -44,7 +44,7 @@ from rig.instrument.clock import Clock
 from rig.instrument.direction_uncertainty import direction_covariances
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints
-from rig.instrument.links.base import LinkError, MotionLink, MoveTimeout
+from rig.instrument.links.base import HomingLink, LinkError, MotionLink, MoveTimeout
 from rig.run.bounded_camera import BoundedCamera
 from rig.run.journal import check_records
 from rig.run.measure import CaptureSettings, Level, Reading, take_reading
@@ -191,12 +191,27 @@ class Runner:
             gap = max(0.0, time.time() - datetime.datetime.fromisoformat(last["utc"]).timestamp())
         self._offset = base + gap - now
 
+    def _return_to_last_pose(self, records: list[dict[str, Any]]) -> None:
+        """On resume, a link that homes (GRBL) first returns to the last record's pose, as if it never left."""
+        if not isinstance(self.link, HomingLink):
+            return  # servos stand where they stood: nothing to find
+        last = next((r for r in reversed(records) if r.get("kind") in ("point", "reference")), None)
+        if last is None:
+            return
+        if last["kind"] == "reference":
+            if self.reference is None:
+                return
+            self._move(self.reference.joints)
+            return
+        planned = next((p for p in self.plan.points if p.index == last["index"]), None)
+        if planned is not None:
+            self._move(planned.joints)
+
     # -- the loop -------------------------------------------------------------------------------------
     def run(self) -> RunSummary:
         """Measure every point not yet in the journal, then write the table; stops safely on any fault."""
         started = self.clock.now()
         records = self.store.records()
-        self._continue_time(records)
         check_records(records, self.store.path / JOURNAL)
         done = {r["index"] for r in records if r["kind"] == "point"}
         ref_done = {r["slot"]: r for r in records if r["kind"] == "reference"}
@@ -211,8 +226,12 @@ class Runner:
         bar = tqdm(total=len(self.plan.points), initial=len(done), unit="pt", disable=not self.options.progress,
                    file=sys.stderr, dynamic_ncols=True,
                    bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")  # fmt: skip
-        self.eta.start(len(self.plan.points) - len(done))
         try:
+            # Inside the try: a fault on the way back stops the run safely like any other.
+            if len(done) < len(self.plan.points):
+                self._return_to_last_pose(records)
+            self._continue_time(records)
+            self.eta.start(len(self.plan.points) - len(done))
             for pos, point in enumerate(self.plan.points):
                 if pos in slots and pos not in ref_done and point.index not in done:
                     last_ref = self._reference(pos, last_ref)
