@@ -16,6 +16,7 @@ the truth (a standard normal: 68.3, 95.4, 99.7 %; the binomial scatter of n read
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import tempfile
 import time
@@ -61,6 +62,17 @@ def _rig(
     return rig_config(parse(doc, RigFile, "<payoff rig>"), "<payoff rig>")
 
 
+def _true_calibration(fitted: Path, path: Path, mis: dict[str, Any]) -> Path:
+    """A copy of a calibration file holding the simulated rig's true geometry (errors as fitted)."""
+    doc = json.loads(fitted.read_text())
+    for name, value in mis.items():
+        if isinstance(doc.get(name), dict) and "value" in doc[name]:
+            doc[name]["value"] = value
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(doc))
+    return path
+
+
 def _score(rig: RigConfig, material: Material, rows: list[dict[str, Any]], pairs: Any) -> dict[str, Any]:
     samples = Samples.from_table_rows(rows, errors="point")
     with warnings.catch_warnings():
@@ -84,6 +96,8 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--captures", type=int, default=24)
     p.add_argument("--materials", default="glossy,plastic,metal", help="comma-separated: glossy, plastic, metal")
+    p.add_argument("--oracle", action="store_true",
+                   help="also measure with the true geometry as the calibration: the floor calibration could reach")
     args = p.parse_args()
     keys = ("glossy", "plastic", "metal")
     wanted = [k.strip() for k in args.materials.split(",") if k.strip()]
@@ -119,6 +133,11 @@ def main() -> None:
             fixed = _rig(material, mis, args.seed + k, calibration=cal)
             rows, _ = measure_points(fixed, pts, out / "calibrated", SNR)
             scores["calibrated"] = _score(fixed, material, rows, pairs)
+            if args.oracle:
+                truth = _true_calibration(cal, out / "oracle_cal" / "geometry_calibration.json", mis)
+                known = _rig(material, mis, args.seed + k, calibration=truth)
+                rows, _ = measure_points(known, pts, out / "oracle", SNR)
+                scores["oracle"] = _score(known, material, rows, pairs)
         c, pe = scores["calibrated"], scores["perfect"]
         n = c["n_z"]
         scatter = "/".join(f"{100 * math.sqrt(q * (1 - q) / max(n, 1)):.1f}" for q in (0.683, 0.954, 0.997))
@@ -126,6 +145,11 @@ def main() -> None:
         print(f"  {material.name:<44} {pe['error']:9.2e} {scores['uncalibrated']['error']:13.2e} {c['error']:11.2e} "
               f"{c['error'] / pe['error']:12.2f} {within:>16} % (+-{scatter}, n {n}) "
               f"[{time.perf_counter() - start:.0f} s]", flush=True)  # fmt: skip
+        if "oracle" in scores:
+            o = scores["oracle"]
+            print(f"  {'  ... with the true geometry (oracle)':<44} {'':9} {'':13} {o['error']:11.2e} "
+                  f"{o['error'] / pe['error']:12.2f} {'/'.join(f'{100 * w:.1f}' for w in o['within']):>16} %, "
+                  f"chi2/dof {o['chi2']:.2f}", flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":
