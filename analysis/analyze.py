@@ -136,10 +136,14 @@ def default_out(source: str | Path) -> Path:
 
 
 def write_report(
-    a: Analysis, out: str | Path, *, y_scale: str = "auto", merl: bool = False, log: Log | None = None
+    a: Analysis, out: str | Path, *, y_scale: str = "auto", merl: bool = False, log: Log | None = None,
+    mitsuba_plugin: bool = False,
 ) -> Path:
-    """Write figures/, fit.json, export/ (the chosen model for Mitsuba, glTF, optionally MERL) and index.html."""
-    from analysis.export import export_material
+    """Write figures/, fit.json, export/ (the chosen model for Mitsuba, glTF, optionally MERL) and index.html.
+
+    ``mitsuba_plugin`` adds export/mitsuba_gonio_plugin.xml, the exact model for processes that have gonio.
+    """
+    from analysis.export import export_material, export_notes
     from analysis.report_html import write_html
     from analysis.report_plots import write_figures
 
@@ -153,8 +157,8 @@ def write_report(
     write_atomic(out / "fit.json", lambda tmp: tmp.write_text(text, encoding="utf-8"))
     say(f"wrote {out / 'fit.json'}")
     say(f"exporting the chosen model to {out / 'export'}" + (" (with a 35 MB MERL table)" if merl else ""))
-    exports = export_material(a.selection.chosen.model, out / "export", merl=merl)
-    return write_html(a, figures, out / "index.html", exports)
+    exports = export_material(a.selection.chosen.model, out / "export", merl=merl, gonio_plugin=mitsuba_plugin)
+    return write_html(a, figures, out / "index.html", exports, notes=export_notes(exports))
 
 
 def analyze(
@@ -171,11 +175,13 @@ def analyze(
     merl: bool = False,
     log: Log | None = None,
     errors: str = "total",
+    mitsuba_plugin: bool = False,
 ) -> Path:
     """Analyse a run directory or MERL file into ``out`` (default: see default_out); returns index.html's path."""
     a = load_and_fit(source, models=models, loss=loss, starts=starts, samples=samples, seed=seed, compare=compare,
                      log=log, errors=errors)  # fmt: skip
-    return write_report(a, default_out(source) if out is None else out, y_scale=y_scale, merl=merl, log=log)
+    return write_report(a, default_out(source) if out is None else out, y_scale=y_scale, merl=merl, log=log,
+                        mitsuba_plugin=mitsuba_plugin)  # fmt: skip
 
 
 def stderr_log(line: str) -> None:

@@ -34,7 +34,8 @@ def _analyze(args: argparse.Namespace) -> int:
     models = parse_models(args.models) if args.models else None
     a = load_and_fit(args.source, models=models, loss=args.loss, starts=args.starts, samples=args.samples,
                      seed=args.seed, compare=args.compare, log=log, errors=args.errors)  # fmt: skip
-    page = write_report(a, args.out or default_out(args.source), y_scale=args.y_scale, merl=args.merl, log=log)
+    page = write_report(a, args.out or default_out(args.source), y_scale=args.y_scale, merl=args.merl, log=log,
+                        mitsuba_plugin=args.mitsuba_plugin)  # fmt: skip
     print(page)
     print(a.verdict())
     return EXIT_OK
@@ -75,3 +76,6 @@ def add_fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--y-scale", default="auto", choices=("auto", "log", "linear"),
                    help="slices' y axis (default auto: log when the values span more than 50x)")  # fmt: skip
     p.add_argument("--merl", action="store_true", help="also export the chosen model as a MERL .binary (35 MB)")
+    p.add_argument("--mitsuba-plugin", action="store_true",
+                   help="also export the exact model for gonio's Mitsuba plugin (export/mitsuba_gonio_plugin.xml; "
+                   "renders only where gonio is installed) when the stock-Mitsuba export is a projection")  # fmt: skip

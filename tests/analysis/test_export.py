@@ -110,15 +110,13 @@ def test_json_dict_loads_and_evaluates_to_the_model(case: str) -> None:
 
 
 @pytest.mark.parametrize("case", sorted(PLUGIN))
-def test_non_native_models_export_exactly_through_the_gonio_plugin(case: str) -> None:
+def test_non_native_models_export_exactly_through_the_gonio_plugin_on_request(case: str) -> None:
     m = PLUGIN[case]
-    with pytest.raises(ValueError, match="no native Mitsuba plugin"):
-        mitsuba_dict(m)
-    d = mitsuba_dict(m, allow_plugin=True)
+    d = mitsuba_dict(m, plugin=True)
     assert d["type"] == mitsuba_bsdf.PLUGIN and set(d) == {"type", mitsuba_bsdf.MODEL_JSON_KEY}
     assert from_json_dict(json.loads(d[mitsuba_bsdf.MODEL_JSON_KEY])) == m  # plain data, no registry key
-    fragment = mitsuba_xml(m, "plugin_bsdf", version="3.0.0")
-    assert "stock Mitsuba cannot render it" in fragment and "gltf_material.json" in fragment
+    fragment = mitsuba_xml(m, "plugin_bsdf", version="3.0.0", plugin=True)
+    assert "stock Mitsuba cannot render it" in fragment and "mitsuba_bsdf.xml" in fragment
     assert_matches(mi.load_string(fragment), m, PLUGIN_REL_TOL)
     assert_matches(mi.load_dict(d), m, PLUGIN_REL_TOL)
 
@@ -153,7 +151,7 @@ def load_through_include(xml_file: Path, name: str) -> Any:
 def test_export_material_writes_every_file_for_a_native_model(tmp_path: Path) -> None:
     m = NATIVE["lambert_ggx_dielectric"][0]
     paths = export_material(m, tmp_path / "out", name="plastic")
-    assert set(paths) == {"material", "mitsuba_xml", "mitsuba_json", "gltf"}
+    assert set(paths) == {"material", "mitsuba_xml", "mitsuba_json", "mitsuba_scene", "gltf", "gltf_asset", "readme"}
     assert {p.name for p in paths.values()} == {FILES[k] for k in paths}
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == sorted(FILES[k] for k in paths)  # no temp files
     doc = json.loads(paths["material"].read_text())
@@ -172,18 +170,26 @@ def test_export_material_writes_every_file_for_a_native_model(tmp_path: Path) ->
     assert gltf["extras"]["projection_error"]["rms_rel"] == projection.rms_rel > 0
 
 
-def test_export_material_for_a_plugin_model_skips_the_stock_mitsuba_dict(tmp_path: Path) -> None:
+def test_export_material_for_a_non_native_model_writes_the_stock_projection(tmp_path: Path) -> None:
     m = PLUGIN["phong"]
     paths = export_material(m, tmp_path, name="phong")
-    assert set(paths) == {"material", "mitsuba_xml", "gltf"}
-    assert not (tmp_path / FILES["mitsuba_json"]).exists()
+    assert set(paths) == {"material", "mitsuba_xml", "mitsuba_json", "mitsuba_scene", "gltf", "gltf_asset", "readme"}
     doc = json.loads(paths["material"].read_text())
     assert doc["facts"]["mitsuba"] == {
         "plugin": "gonio_model",
         "native": False,
         "note": "Python plugin: Mitsuba has no Phong plugin",
     }
-    assert_matches(load_through_include(paths["mitsuba_xml"], "phong"), m, PLUGIN_REL_TOL)
+    stock = doc["facts"]["mitsuba_stock"]
+    assert stock["plugin"] == "blendbsdf" and not stock["exact"]
+    native = from_json_dict(stock["native_model"])
+    # The stock BSDF is exactly the Mitsuba form of the fitted native model; nothing names gonio's plugin.
+    assert json.loads(paths["mitsuba_json"].read_text()) == mitsuba_dict(native)
+    assert "gonio_model" not in paths["mitsuba_xml"].read_text().split("-->")[-1]
+    assert_matches(load_through_include(paths["mitsuba_xml"], "phong"), native, NATIVE_REL_TOL)
+    assert f"{stock['error']['rms_rel']:.3%}" in paths["readme"].read_text()
+    with_plugin = export_material(m, tmp_path / "with_plugin", name="phong", gonio_plugin=True)
+    assert_matches(load_through_include(with_plugin["mitsuba_plugin_xml"], "phong"), m, PLUGIN_REL_TOL)
 
 
 def test_merl_export_reads_back_bin_by_bin(tmp_path: Path) -> None:
