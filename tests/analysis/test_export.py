@@ -215,3 +215,46 @@ def test_refusals_leave_nothing_behind(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="name = ''"):
         export_material(Lambert(), tmp_path / "unnamed", name="")
     assert not (tmp_path / "merl").exists() and not (tmp_path / "unnamed").exists()
+
+
+def test_gltf_asset_is_a_whole_valid_gltf_2_document(tmp_path: Path) -> None:
+    import base64
+    import struct
+
+    m = NATIVE["ggx_conductor"][0]
+    paths = export_material(m, tmp_path, name="gold")
+    doc = json.loads(paths["gltf_asset"].read_text())
+    assert doc["asset"]["version"] == "2.0" and doc["scene"] == 0
+    # Every index points at something that exists (glTF 2.0 section 3.7 onwards).
+    scene = doc["scenes"][doc["scene"]]
+    node = doc["nodes"][scene["nodes"][0]]
+    prim = doc["meshes"][node["mesh"]]["primitives"][0]
+    assert doc["materials"][prim["material"]] == json.loads(paths["gltf"].read_text())
+    (buffer,) = doc["buffers"]
+    prefix = "data:application/octet-stream;base64,"
+    assert buffer["uri"].startswith(prefix)
+    data = base64.b64decode(buffer["uri"][len(prefix):])
+    assert len(data) == buffer["byteLength"]
+    sizes = {5126: 4, 5123: 2}
+    widths = {"SCALAR": 1, "VEC2": 2, "VEC3": 3}
+    decoded = {}
+    for i, acc in enumerate(doc["accessors"]):
+        view = doc["bufferViews"][acc["bufferView"]]
+        assert view["buffer"] == 0 and view["byteOffset"] % sizes[acc["componentType"]] == 0
+        assert view["byteOffset"] + view["byteLength"] <= len(data)
+        n = acc["count"] * widths[acc["type"]]
+        assert n * sizes[acc["componentType"]] == view["byteLength"]
+        fmt = "<" + ("f" if acc["componentType"] == 5126 else "H") * n
+        decoded[i] = np.array(struct.unpack_from(fmt, data, view["byteOffset"])).reshape(acc["count"], -1)
+    pos = decoded[prim["attributes"]["POSITION"]]
+    np.testing.assert_allclose(pos.min(axis=0), doc["accessors"][prim["attributes"]["POSITION"]]["min"], atol=1e-7)
+    np.testing.assert_allclose(pos.max(axis=0), doc["accessors"][prim["attributes"]["POSITION"]]["max"], atol=1e-7)
+    assert np.ptp(pos[:, 0]) == pytest.approx(0.05) and np.all(pos[:, 1] == 0)  # a 5 cm patch in the x-z plane
+    idx = decoded[prim["indices"]].ravel().astype(int)
+    assert sorted(set(idx)) == [0, 1, 2, 3] and prim.get("mode", 4) == 4
+    normals = decoded[prim["attributes"]["NORMAL"]]
+    np.testing.assert_allclose(normals, [[0.0, 1.0, 0.0]] * 4)
+    # Triangles wind counter-clockwise seen along their normal (front faces, glTF 2.0 section 3.7.2.1).
+    for t in idx.reshape(-1, 3):
+        a, b, c = pos[t]
+        assert np.dot(np.cross(b - a, c - a), normals[t[0]]) > 0
