@@ -82,6 +82,8 @@ def _looks_numeric(cell: str) -> bool:
 def _source(a: Analysis) -> str:
     s = a.source
     rows: list[tuple[str, str]] = [("source", f"{'run directory' if s.kind == 'run' else 'MERL table'} {s.path}")]
+    # The run's [metadata] (sample, operator, notes and the lab's own keys) heads the page as it was written.
+    rows += [(k, ", ".join(map(str, v)) if isinstance(v, list) else str(v)) for k, v in s.metadata]
     if s.kind == "run":
         rows += [
             ("run status", s.state + (f" ({s.stop_reason})" if s.stop_reason else "")),

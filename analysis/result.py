@@ -45,6 +45,8 @@ class SourceSummary:
     sweep_name: str | None = None
     material: str | None = None
     notes: tuple[str, ...] = ()
+    #: The run's ``[metadata]`` (sample, operator, notes, free keys) as (key, value) pairs, values JSON.
+    metadata: tuple[tuple[str, Any], ...] = ()
 
     @property
     def warning(self) -> str | None:
@@ -58,7 +60,8 @@ class SourceSummary:
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form (for fit.json)."""
-        return {**dataclasses.asdict(self), "path": str(self.path), "notes": list(self.notes)}
+        return {**dataclasses.asdict(self), "path": str(self.path), "notes": list(self.notes),
+                "metadata": dict(self.metadata)}  # fmt: skip
 
 
 @dataclass(frozen=True)

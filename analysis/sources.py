@@ -16,6 +16,7 @@ from analysis.result import AnalysisError, Log, Reference, SourceSummary
 from model.fit.samples import FitError, Samples
 from model.merl import MerlFormatError, MerlTable, read_merl
 from rig.run.config import material_from
+from rig.run.config_schema import run_metadata
 from rig.run.journal import check_records
 from rig.run.session import configs_of, reference_settings
 from rig.run.store import JOURNAL, RunStore, RunStoreError
@@ -79,6 +80,7 @@ def load_run(path: Path, log: Log, errors: str = "total") -> tuple[SourceSummary
         "run", path, status["state"], status.get("reason"), len(rows), store.manifest.get("points"),
         len(store.manifest.get("unreachable", [])), int(samples.lower_bound.sum()), sweep.file.sweep.kind,
         rig.file.name, sweep.file.name, material, samples.notes,
+        tuple(store.manifest.get("metadata", run_metadata(rig.file, sweep.file)).items()),
     )  # fmt: skip
     log(f"loaded run {path}: {len(rows)} points ({status['state']}), {samples.n} usable samples")
     return summary, samples, refs

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from gonio.cli_run import EXIT_OK, _rig, _sigterm_as_interrupt, _stopped
+from gonio.cli_run import _rig, _sigterm_as_interrupt, _stopped, _summary, resume_adaptive_dir
 
 
 def _adaptive(args: argparse.Namespace) -> int:
@@ -14,6 +14,13 @@ def _adaptive(args: argparse.Namespace) -> int:
     from rig.run.adaptive import AdaptiveSettings, run_adaptive
     from rig.run.runner import RunStopped
 
+    if args.resume:
+        if args.out or args.rig:
+            raise ValueError("--resume DIR continues a sweep with the rig and settings it started with; "
+                             "give no --out or --rig with it")  # fmt: skip
+        return resume_adaptive_dir(args.resume)
+    if not args.out:
+        raise ValueError("gonio adaptive: --out DIR is required (or --resume DIR to continue a sweep)")
     spec = None if args.model == "auto" else parse_models(args.model)[0]
     settings = AdaptiveSettings(budget=args.budget, initial=args.initial, batch=args.batch,
                                 max_theta_deg=args.max_theta, target_snr=args.snr,
@@ -25,11 +32,7 @@ def _adaptive(args: argparse.Namespace) -> int:
             result = run_adaptive(rig, Path(args.out), spec, settings)
     except RunStopped as exc:
         return _stopped(exc)
-    last = result.rounds[-1]
-    print(f"{last.captures} captures in {len(result.rounds)} rounds, {result.rig_time_s / 60:.1f} min rig time; "
-          f"table {result.table}")  # fmt: skip
-    print(last.fit.summary())
-    return EXIT_OK
+    return _summary(result)
 
 
 def add_adaptive_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -39,12 +42,15 @@ def add_adaptive_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]
         description="An adaptive sweep: a space-filling first round, then rounds chosen from reachable "
         "candidates to lower the fitted BRDF's expected error the most (first order, from the fit's "
         "Jacobian). Each round is an ordinary run in OUT/round-NN; OUT/samples.csv holds every round's rows "
-        "and OUT/adaptive.json the fits. Analyse it with `gonio analyze` on any round or fit OUT/samples.csv.",
+        "and OUT/adaptive.json the settings and fits. An interrupted sweep continues with --resume OUT (or "
+        "gonio resume OUT); gonio analyze OUT analyses every round together.",
         epilog="Example: gonio adaptive --rig examples/rig_simulated.toml --out runs/gold-adaptive "
         "--model ggx_conductor --budget 100",
     )  # fmt: skip
     p.add_argument("--rig", help="rig file (TOML); default: the built-in simulated rig")
-    p.add_argument("--out", required=True, help="directory to create (must not exist or be empty)")
+    p.add_argument("--out", help="directory to create (must not exist or be empty)")
+    p.add_argument("--resume", metavar="DIR", help="continue the interrupted adaptive sweep in DIR with the rig, "
+                   "model and settings it started with (no other options)")  # fmt: skip
     p.add_argument("--model", default="auto", help="model fitted between rounds (a name gonio analyze --models "
                    "accepts), or auto: the model selection's choice each round (default)")  # fmt: skip
     p.add_argument("--budget", type=int, default=100, help="captures in all (default 100)")
