@@ -22,7 +22,15 @@ import numpy as np
 from acquisition.files.atomic import write_atomic
 from analysis.ladder import fit_ladder
 from analysis.result import Analysis, AnalysisError, Log, Reference
-from analysis.sources import DEFAULT_MERL_SAMPLES, load_merl, load_run, read_merl_source
+from analysis.sources import (
+    DEFAULT_MERL_SAMPLES,
+    load_adaptive,
+    load_merl,
+    load_run,
+    load_table,
+    read_merl_source,
+    source_kind,
+)
 from analysis.uncertainty import uncertainty_json
 from model.base import Model
 from model.fit.samples import FitError
@@ -45,30 +53,34 @@ def load_and_fit(
     log: Log | None = None,
     errors: str = "total",
 ) -> Analysis:
-    """Load a run directory or a MERL file (``samples`` random bins), fit the ladder and choose a model."""
+    """Load a run, an adaptive sweep, a samples table or a MERL file (``samples`` random bins), fit and choose."""
     say = log or (lambda _: None)
     path = Path(source)
+    kind = source_kind(path)
     if errors not in ("total", "point"):
         raise AnalysisError(f"--errors {errors!r}: expected 'total' or 'point'")
-    if errors == "point" and path.is_file():
+    if errors == "point" and kind == "merl":
         raise AnalysisError(f"--errors point: {path} is a MERL file, which has no readings (its errors are assumed)")
     if loss not in LOSSES:
         raise AnalysisError(f"--loss {loss!r}: expected one of {', '.join(LOSSES)}")
     if starts < 1:
         raise AnalysisError(f"--starts {starts}: expected at least 1")
-    if not path.exists():
-        raise AnalysisError(f"{path}: no such file or directory (SOURCE: a run directory or a MERL .binary file)")
-    if path.is_dir() and samples is not None:
-        raise AnalysisError(f"--samples {samples}: only a MERL source is subsampled; {path} is a run directory")
+    if kind == "missing":
+        raise AnalysisError(f"{path}: no such file or directory (SOURCE: a run directory, an adaptive sweep's "
+                            "directory, a samples.csv / samples.parquet table or a MERL .binary file)")  # fmt: skip
+    if kind != "merl" and samples is not None:
+        raise AnalysisError(f"--samples {samples}: only a MERL source is subsampled; {path} is not a MERL file")
     n = DEFAULT_MERL_SAMPLES if samples is None else samples
     if n < 1:
         raise AnalysisError(f"--samples {n}: expected a positive number of MERL bins")
-    if path.is_dir() and not (path / MANIFEST).is_file():
-        raise AnalysisError(f"{path}: not a run directory (no {MANIFEST}; expected a directory written by gonio run)")
+    if kind == "unknown":
+        raise AnalysisError(f"{path}: not a run directory (no {MANIFEST}; expected a directory written by gonio run) "
+                            "nor an adaptive sweep's (no adaptive.json, written by gonio adaptive)")  # fmt: skip
     ladder = tuple(default_ladder() if models is None else models)
     with warnings.catch_warnings(record=True) as got:
         warnings.simplefilter("always")
-        summary, data, refs = load_run(path, say, errors) if path.is_dir() else load_merl(path, n, seed, say)
+        loaders = {"run": load_run, "adaptive": load_adaptive, "table": load_table}
+        summary, data, refs = loaders[kind](path, say, errors) if kind in loaders else load_merl(path, n, seed, say)
         if compare is not None:
             refs.append(Reference(f"MERL reference {Path(compare).name}", read_merl_source(Path(compare), "--compare")))
     loaded = [f"{w.category.__name__}: {w.message}" for w in got]

@@ -81,10 +81,11 @@ def _looks_numeric(cell: str) -> bool:
 
 def _source(a: Analysis) -> str:
     s = a.source
-    rows: list[tuple[str, str]] = [("source", f"{'run directory' if s.kind == 'run' else 'MERL table'} {s.path}")]
+    what = {"run": "run directory", "adaptive": "adaptive sweep", "table": "samples table"}.get(s.kind, "MERL table")
+    rows: list[tuple[str, str]] = [("source", f"{what} {s.path}")]
     # The run's [metadata] (sample, operator, notes and the lab's own keys) heads the page as it was written.
     rows += [(k, ", ".join(map(str, v)) if isinstance(v, list) else str(v)) for k, v in s.metadata]
-    if s.kind == "run":
+    if s.kind in ("run", "adaptive"):
         rows += [
             ("run status", s.state + (f" ({s.stop_reason})" if s.stop_reason else "")),
             ("points", f"{s.measured} measured of {s.planned} planned; {s.unreachable} unreachable (not planned)"),
@@ -94,6 +95,8 @@ def _source(a: Analysis) -> str:
         ]  # fmt: skip
         if s.material:
             rows.append(("simulated material", s.material))
+    elif s.kind == "table":
+        rows.append(("samples", f"{s.measured} rows of the table"))
     else:
         rows.append(("samples", f"{s.measured} random bins (std errors assumed)"))
     if a.references:

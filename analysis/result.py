@@ -32,7 +32,7 @@ class AnalysisError(ValueError):
 class SourceSummary:
     """What was analysed: a run (status, points measured/planned/unreachable, sweep, material) or a MERL file."""
 
-    kind: str  # "run" or "merl"
+    kind: str  # "run", "adaptive" (an adaptive sweep's rounds), "table" (a samples table alone) or "merl"
     path: Path
     state: str  # finished, stopped or running for a run; "file" for MERL
     stop_reason: str | None = None
@@ -51,9 +51,11 @@ class SourceSummary:
     @property
     def warning(self) -> str | None:
         """The banner for an unfinished run ("run stopped: <reason>; N of M points"), else None."""
-        if self.kind != "run" or self.state == "finished":
+        if self.kind not in ("run", "adaptive") or self.state == "finished":
             return None
         of = f"{self.measured} of {self.planned} points"
+        if self.kind == "adaptive":
+            return f"adaptive sweep not finished: {self.stop_reason}; {of}"
         if self.state == "stopped":
             return f"run stopped: {self.stop_reason or 'no reason recorded'}; {of}"
         return f"run not finished (no status.json: still running or killed); {of}"

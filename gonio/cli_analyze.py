@@ -52,7 +52,8 @@ def add_analyze_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser])
         epilog="Example: gonio analyze runs/gold --models lambert,lambert_ggx,ggx_conductor  (writes "
         "runs/gold/analysis/index.html); gonio analyze gold-metallic-paint.binary --samples 20000",
     )  # fmt: skip
-    p.add_argument("source", help="run directory or MERL .binary file")
+    p.add_argument("source", help="run directory, adaptive sweep directory, samples.csv / samples.parquet table, "
+                   "or MERL .binary file")
     p.add_argument("--out", help="report directory (default: RUN/analysis, or <name>-analysis beside a MERL file)")
     add_fit_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress lines")
