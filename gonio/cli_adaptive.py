@@ -9,6 +9,17 @@ from pathlib import Path
 from gonio.cli_run import _rig, _sigterm_as_interrupt, _stopped, _summary, resume_adaptive_dir
 
 
+def _metadata(pairs: list[str] | None) -> dict[str, str]:
+    """--metadata KEY=VALUE options as the sweep's [metadata] (an adaptive sweep has no sweep file)."""
+    out = {}
+    for pair in pairs or []:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"--metadata {pair!r}: expected KEY=VALUE, e.g. sample='gold foil #7'")
+        out[key.strip()] = value
+    return out
+
+
 def _adaptive(args: argparse.Namespace) -> int:
     from analysis.ladder import parse_models
     from rig.run.adaptive import AdaptiveSettings, run_adaptive
@@ -29,7 +40,7 @@ def _adaptive(args: argparse.Namespace) -> int:
     print(f"adaptive sweep into {args.out}: {settings.budget} captures, model {args.model}", file=sys.stderr)
     try:
         with _sigterm_as_interrupt():
-            result = run_adaptive(rig, Path(args.out), spec, settings)
+            result = run_adaptive(rig, Path(args.out), spec, settings, metadata=_metadata(args.metadata))
     except RunStopped as exc:
         return _stopped(exc)
     return _summary(result)
@@ -63,4 +74,8 @@ def add_adaptive_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]
                    "wants them about 2.5x the SNR a single long run would use")  # fmt: skip
     p.add_argument("--max-theta", type=float, default=70.0, help="largest zenith of any capture, deg (default 70)")
     p.add_argument("--seed", type=int, default=0, help="seed of the candidate pool (default 0)")
+    p.add_argument("--metadata", action="append", metavar="KEY=VALUE",
+                   help="what the sweep is about (sample=..., operator=..., notes=..., or a key of your own; "
+                   "repeat for more), laid over the rig file's [metadata]: into every round, the tables and the "
+                   "report")  # fmt: skip
     p.set_defaults(func=_adaptive)
