@@ -18,7 +18,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from analysis.export import FILES, export_material, mitsuba_dict, mitsuba_xml
+from analysis.export import FILES, export_material, export_notes, mitsuba_dict, mitsuba_xml
 from model import CookTorrance, Lambert, MerlTable, MetalRoughness, Phong, read_merl
 from model.base import BRDF
 from model.fit.metal_roughness import to_metal_roughness
@@ -188,6 +188,10 @@ def test_export_material_for_a_non_native_model_writes_the_stock_projection(tmp_
     assert "gonio_model" not in paths["mitsuba_xml"].read_text().split("-->")[-1]
     assert_matches(load_through_include(paths["mitsuba_xml"], "phong"), native, NATIVE_REL_TOL)
     assert f"{stock['error']['rms_rel']:.3%}" in paths["readme"].read_text()
+    # What the report page says beside the file: for stock Mitsuba, a projection, and how far it is.
+    assert export_notes(paths)["mitsuba_xml"] == (
+        "stock Mitsuba 3, no gonio needed: nearest stock BSDF (blendbsdf), a projection, relative RMS BRDF "
+        f"difference {stock['error']['rms_rel']:.2%}, evaluated by Mitsuba")
     with_plugin = export_material(m, tmp_path / "with_plugin", name="phong", gonio_plugin=True)
     assert_matches(load_through_include(with_plugin["mitsuba_plugin_xml"], "phong"), m, PLUGIN_REL_TOL)
 
