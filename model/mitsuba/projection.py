@@ -10,7 +10,9 @@ that stock Mitsuba 3 renders. :func:`native_projection` gives every model such a
   ``ggx_conductor+lambert``, which to_mitsuba writes as a ``blendbsdf``), fitted to the model's noise-free
   values at the direction pairs of :func:`model.fit.metal_roughness.sample_pairs` (cosine-weighted, with
   GGX-lobe pairs so specular peaks are resolved), and if that fit lands outside what maps natively
-  (F0 below ``F0_MIN_NATIVE``), onto ``diffuse`` alone.
+  (F0 below ``F0_MIN_NATIVE``), onto ``diffuse`` alone. A Cook-Torrance source (Schlick Fresnel, other
+  masking: the ladder's usual candidates) starts the fit at its own parameters (:func:`warm_start`); other
+  sources get the family's own guess and a random start.
 
 Error. Whichever path, Mitsuba evaluates the BSDF it was given (``bsdf.eval`` divided by cos(theta) of
 its ``wo``) on a fixed grid of directions, :data:`GRID_THETA_DEG` for both zenith angles (to 80 deg),
@@ -28,6 +30,7 @@ not. For native mappings the number is float32 rounding (GGX) or Mitsuba's Beckm
 from __future__ import annotations
 
 import copy
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,6 +40,7 @@ import numpy as np
 import numpy.typing as npt
 
 from model.base import BRDF
+from model.cook_torrance import CookTorrance
 from model.fit.metal_roughness import sample_pairs
 from model.fit.samples import Samples
 from model.fit.solve import fit
@@ -177,13 +181,43 @@ def grid_error(source: BRDF, bsdf: dict[str, Any], variant: str | None = None) -
     }  # fmt: skip
 
 
+def _constant(value: Any) -> Any:
+    arr = np.atleast_1d(np.asarray(value, dtype=np.float64))
+    return (lambda _samples: arr.copy()) if arr.size > 1 else float(arr[0])
+
+
+def warm_start(spec: FitSpec, source: BRDF) -> FitSpec | None:
+    """``spec`` started from a Cook-Torrance source's own rho_d, alpha and Fresnel (None for other sources).
+
+    The usual candidates of the ladder are Cook-Torrance variants (Schlick Fresnel, other masking); started at
+    their own parameters one start reaches the optimum the random starts find (measured on Lambert + GGX
+    with Schlick Fresnel: the same error to 4 digits in a tenth of the time).
+    """
+    if spec.model is not CookTorrance or type(source) is not CookTorrance:
+        return None
+    if source.fresnel == "schlick":
+        root = np.sqrt(np.clip(np.atleast_1d(np.asarray(source.f0, dtype=np.float64)), 1e-4, 0.95))
+        eta, k = (1.0 + root) / (1.0 - root), np.zeros_like(root)  # the dielectric with that F0
+    else:
+        eta = np.atleast_1d(np.asarray(source.eta, dtype=np.float64))
+        k = np.atleast_1d(np.asarray(source.k if source.fresnel == "conductor" else 0.0, dtype=np.float64))
+    start = {"rho_d": source.rho_d, "alpha": source.alpha, "eta": eta, "k": k}
+    params = []
+    for p in spec.params:
+        lo, hi = (p.lo * 1.0001, p.hi * 0.9999) if p.log else (p.lo, p.hi)
+        params.append(dataclasses.replace(p, init=_constant(np.clip(start[p.name], lo, hi))))
+    return dataclasses.replace(spec, params=tuple(params))
+
+
 def _fit_family(spec: FitSpec, source: BRDF, seed: int) -> BRDF:
     wi, wo, w = sample_pairs(FIT_SAMPLES, np.random.default_rng(seed))
     f = _values(source, wi, wo)
     # Importance weights as std errors, as model.fit.metal_roughness does (their chi2 means nothing).
     se = np.broadcast_to(1.0 / np.sqrt(w / w.mean())[:, None], f.shape)
     samples = Samples(wi, wo, f, se, source=type(source).__name__)
-    result = fit(spec, samples, loss="l2", starts=FIT_STARTS, seed=seed, weighted=True, warn=False)
+    warm = warm_start(spec, source)
+    result = fit(warm or spec, samples, loss="l2", starts=1 if warm else FIT_STARTS, seed=seed, weighted=True,
+                 warn=False)  # fmt: skip
     return result.model
 
 
