@@ -22,7 +22,15 @@ import numpy as np
 from acquisition.files.atomic import write_atomic
 from analysis.ladder import fit_ladder
 from analysis.result import Analysis, AnalysisError, Log, Reference
-from analysis.sources import DEFAULT_MERL_SAMPLES, load_merl, load_run, read_merl_source
+from analysis.sources import (
+    DEFAULT_MERL_SAMPLES,
+    load_adaptive,
+    load_merl,
+    load_run,
+    load_table,
+    read_merl_source,
+    source_kind,
+)
 from analysis.uncertainty import uncertainty_json
 from model.base import Model
 from model.fit.samples import FitError
@@ -45,30 +53,34 @@ def load_and_fit(
     log: Log | None = None,
     errors: str = "total",
 ) -> Analysis:
-    """Load a run directory or a MERL file (``samples`` random bins), fit the ladder and choose a model."""
+    """Load a run, an adaptive sweep, a samples table or a MERL file (``samples`` random bins), fit and choose."""
     say = log or (lambda _: None)
     path = Path(source)
+    kind = source_kind(path)
     if errors not in ("total", "point"):
         raise AnalysisError(f"--errors {errors!r}: expected 'total' or 'point'")
-    if errors == "point" and path.is_file():
+    if errors == "point" and kind == "merl":
         raise AnalysisError(f"--errors point: {path} is a MERL file, which has no readings (its errors are assumed)")
     if loss not in LOSSES:
         raise AnalysisError(f"--loss {loss!r}: expected one of {', '.join(LOSSES)}")
     if starts < 1:
         raise AnalysisError(f"--starts {starts}: expected at least 1")
-    if not path.exists():
-        raise AnalysisError(f"{path}: no such file or directory (SOURCE: a run directory or a MERL .binary file)")
-    if path.is_dir() and samples is not None:
-        raise AnalysisError(f"--samples {samples}: only a MERL source is subsampled; {path} is a run directory")
+    if kind == "missing":
+        raise AnalysisError(f"{path}: no such file or directory (SOURCE: a run directory, an adaptive sweep's "
+                            "directory, a samples.csv / samples.parquet table or a MERL .binary file)")  # fmt: skip
+    if kind != "merl" and samples is not None:
+        raise AnalysisError(f"--samples {samples}: only a MERL source is subsampled; {path} is not a MERL file")
     n = DEFAULT_MERL_SAMPLES if samples is None else samples
     if n < 1:
         raise AnalysisError(f"--samples {n}: expected a positive number of MERL bins")
-    if path.is_dir() and not (path / MANIFEST).is_file():
-        raise AnalysisError(f"{path}: not a run directory (no {MANIFEST}; expected a directory written by gonio run)")
+    if kind == "unknown":
+        raise AnalysisError(f"{path}: not a run directory (no {MANIFEST}; expected a directory written by gonio run) "
+                            "nor an adaptive sweep's (no adaptive.json, written by gonio adaptive)")  # fmt: skip
     ladder = tuple(default_ladder() if models is None else models)
     with warnings.catch_warnings(record=True) as got:
         warnings.simplefilter("always")
-        summary, data, refs = load_run(path, say, errors) if path.is_dir() else load_merl(path, n, seed, say)
+        loaders = {"run": load_run, "adaptive": load_adaptive, "table": load_table}
+        summary, data, refs = loaders[kind](path, say, errors) if kind in loaders else load_merl(path, n, seed, say)
         if compare is not None:
             refs.append(Reference(f"MERL reference {Path(compare).name}", read_merl_source(Path(compare), "--compare")))
     loaded = [f"{w.category.__name__}: {w.message}" for w in got]
@@ -136,10 +148,14 @@ def default_out(source: str | Path) -> Path:
 
 
 def write_report(
-    a: Analysis, out: str | Path, *, y_scale: str = "auto", merl: bool = False, log: Log | None = None
+    a: Analysis, out: str | Path, *, y_scale: str = "auto", merl: bool = False, log: Log | None = None,
+    mitsuba_plugin: bool = False,
 ) -> Path:
-    """Write figures/, fit.json, export/ (the chosen model for Mitsuba, glTF, optionally MERL) and index.html."""
-    from analysis.export import export_material
+    """Write figures/, fit.json, export/ (the chosen model for Mitsuba, glTF, optionally MERL) and index.html.
+
+    ``mitsuba_plugin`` adds export/mitsuba_gonio_plugin.xml, the exact model for processes that have gonio.
+    """
+    from analysis.export import export_material, export_notes
     from analysis.report_html import write_html
     from analysis.report_plots import write_figures
 
@@ -153,8 +169,8 @@ def write_report(
     write_atomic(out / "fit.json", lambda tmp: tmp.write_text(text, encoding="utf-8"))
     say(f"wrote {out / 'fit.json'}")
     say(f"exporting the chosen model to {out / 'export'}" + (" (with a 35 MB MERL table)" if merl else ""))
-    exports = export_material(a.selection.chosen.model, out / "export", merl=merl)
-    return write_html(a, figures, out / "index.html", exports)
+    exports = export_material(a.selection.chosen.model, out / "export", merl=merl, gonio_plugin=mitsuba_plugin)
+    return write_html(a, figures, out / "index.html", exports, notes=export_notes(exports))
 
 
 def analyze(
@@ -171,11 +187,13 @@ def analyze(
     merl: bool = False,
     log: Log | None = None,
     errors: str = "total",
+    mitsuba_plugin: bool = False,
 ) -> Path:
     """Analyse a run directory or MERL file into ``out`` (default: see default_out); returns index.html's path."""
     a = load_and_fit(source, models=models, loss=loss, starts=starts, samples=samples, seed=seed, compare=compare,
                      log=log, errors=errors)  # fmt: skip
-    return write_report(a, default_out(source) if out is None else out, y_scale=y_scale, merl=merl, log=log)
+    return write_report(a, default_out(source) if out is None else out, y_scale=y_scale, merl=merl, log=log,
+                        mitsuba_plugin=mitsuba_plugin)  # fmt: skip
 
 
 def stderr_log(line: str) -> None:

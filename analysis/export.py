@@ -1,67 +1,76 @@
-"""Exports of a fitted material: its parameters, a Mitsuba 3 BSDF (XML and JSON), glTF metal-roughness, MERL.
+"""Exports of a fitted material: its parameters, Mitsuba 3 (stock and gonio's plugin), glTF, MERL, and a README.
 
 A fit is useful beyond gonio only if other tools can take it. Each export says how faithful it is:
 
 - ``material.json``: the model's class and parameters (:mod:`model.serialize`; exact, reads back with
   ``from_json_dict``) plus facts that do not depend on how it was fitted: channels, reciprocity, the
-  energy promise and its exemption, directional albedo at a few incidence angles, the Mitsuba path.
-- ``mitsuba_bsdf.xml`` / ``mitsuba_bsdf.json``: the BSDF :func:`model.mitsuba.materials.to_mitsuba` builds.
-  Where that is a native plugin (``diffuse``, ``roughconductor``, ``blendbsdf`` of those) the export is
-  exact to the tolerances documented there (NATIVE_REL_TOL, BECKMANN_REL_TOL) and renders in stock
-  Mitsuba. The XML file wraps the ``<bsdf id="...">`` in ``<scene version="3.0.0">`` so a scene can
-  ``<include filename="mitsuba_bsdf.xml"/>`` it and ``<ref id="material"/>``; :func:`mitsuba_xml` returns
-  the bare element to paste.
+  energy promise and its exemption, directional albedo at a few incidence angles, the Mitsuba paths and
+  the stock-Mitsuba error.
+- ``mitsuba_bsdf.xml`` / ``mitsuba_bsdf.json``: a BSDF stock Mitsuba 3 renders without gonio
+  (:mod:`analysis.export_mitsuba`): the exact native mapping where one exists (``diffuse``,
+  ``roughconductor``, ``blendbsdf`` of those; tolerances NATIVE_REL_TOL, BECKMANN_REL_TOL), else the
+  nearest diffuse + GGX roughconductor (:func:`model.mitsuba.projection.native_projection`), with the
+  relative RMS BRDF difference Mitsuba measures against the model. The XML file wraps the
+  ``<bsdf id="...">`` in ``<scene version="3.0.0">`` so a scene can ``<include filename="mitsuba_bsdf.xml"/>``
+  it and ``<ref id="material"/>``; :func:`mitsuba_xml` returns the bare element to paste.
+- ``mitsuba_scene.xml``: a whole scene (a 5 cm patch of the material, a point light, a camera) that
+  ``mitsuba mitsuba_scene.xml`` renders as it is.
+- ``mitsuba_gonio_plugin.xml`` (opt-in, ``gonio_plugin=True``, models without an exact native mapping):
+  the exact model through the ``gonio_model`` plugin, for renders in a process that has gonio.
 - ``gltf_material.json``: the glTF 2.0 material closest to the model (:mod:`model.fit.metal_roughness`),
-  with the projection's error in its extras: game engines take nothing else, and it is approximate.
+  with the projection's error in its extras; ``material.gltf``: a whole glTF asset, a sample patch
+  wearing it (:mod:`analysis.export_gltf`), which glTF viewers open.
 - ``material.binary`` (opt-in, 35 MB): the model tabulated at MERL's bin centres, for tools that read
   MERL files (nearest-bin lookup: exact at the bin centres only).
+- ``README.md``: what each file is, and each projection's error in words.
 
-Models without a native Mitsuba plugin (Phong, Ward, the glTF and notes' metalness models, Cook-Torrance
-variants, ...). Mitsuba cannot render them outside gonio, and a "nearest native" BSDF would be a second
-projection with its own error, on top of the glTF one that already serves portability. So the XML
-keeps the exact model: the ``gonio_model`` plugin with the model's JSON in the string property
-``model_json`` (:func:`model.mitsuba.plugin.json_plugin_dict`), which the plugin rebuilds in any
-process, and an XML comment saying that the file needs gonio's plugin (a Python process that imported
-``model.mitsuba.plugin`` under an rgb variant) and that ``gltf_material.json`` is the portable
-approximation. ``mitsuba_bsdf.json`` is written for native models only, as the export's contract with
-stock Mitsuba; :func:`mitsuba_dict` gives the plugin form only when asked (``allow_plugin=True``). MERL
-tables have no JSON form: they export through ``write_merl`` and are refused here.
+MERL tables have no JSON form: they export through ``write_merl`` and are refused here.
 """
 
 from __future__ import annotations
 
-import copy
 import json
 import os
 from pathlib import Path
 from typing import Any
-from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
 from acquisition.files.atomic import atomic_path
+from analysis.export_gltf import gltf_asset
+from analysis.export_mitsuba import (
+    XML_VERSION,
+    merl_refusal,
+    mitsuba_dict,
+    mitsuba_xml,
+    scene_file,
+    scene_xml,
+    stock_note,
+)
 from model.base import BRDF
-from model.fit.metal_roughness import gltf_material, to_metal_roughness
+from model.fit.metal_roughness import GRAZING_DEG, MetalRoughnessFit, gltf_material, to_metal_roughness
 from model.geometry import spherical_to_vector
 from model.integrate import directional_albedo
 from model.merl import MerlTable, write_merl
-from model.mitsuba import plugin as gonio_plugin
 from model.mitsuba.materials import to_mitsuba
+from model.mitsuba.projection import NativeProjection, native_projection
 from model.serialize import to_json_dict
 from model.version import gonio_version
+
+__all__ = ["FILES", "XML_VERSION", "export_material", "export_notes", "material_facts", "mitsuba_dict", "mitsuba_xml"]
 
 #: File name of each export, by the kind :func:`export_material` returns it under.
 FILES: dict[str, str] = {
     "material": "material.json",
     "mitsuba_xml": "mitsuba_bsdf.xml",
     "mitsuba_json": "mitsuba_bsdf.json",
+    "mitsuba_scene": "mitsuba_scene.xml",
+    "mitsuba_plugin_xml": "mitsuba_gonio_plugin.xml",
     "gltf": "gltf_material.json",
+    "gltf_asset": "material.gltf",
     "merl": "material.binary",
+    "readme": "README.md",
 }
-#: Mitsuba scene-format version written into standalone XML.
-XML_VERSION = "3.0.0"
-#: Plugins a nested dict may name to become a nested ``<bsdf>`` element.
-BSDF_PLUGINS = frozenset({"diffuse", "roughconductor", "conductor", "blendbsdf", gonio_plugin.PLUGIN})
 #: Incidence angles (degrees) at which material.json states the directional albedo.
 ALBEDO_THETA_DEG: tuple[float, ...] = (0.0, 30.0, 60.0, 75.0, 85.0)
 #: Evaluations per albedo (quadrature points, or importance samples for models with a microfacet lobe).
@@ -72,97 +81,10 @@ CONVENTIONS = (
 )
 
 
-def _merl_refusal(model: BRDF) -> None:
-    if isinstance(model, MerlTable):
-        raise ValueError(
-            f"MerlTable ({model.source or 'no source'}): Mitsuba has no MERL reader and a table has no JSON form; "
-            "write it with model.write_merl, or render it inside gonio through model.mitsuba.materials.to_mitsuba"
-        )
-
-
-def _plain(d: dict[str, Any]) -> dict[str, Any]:
-    """A deep copy that is guaranteed to be plain JSON data (raises on anything else)."""
-    out: dict[str, Any] = json.loads(json.dumps(d, allow_nan=False))
-    return out
-
-
-def mitsuba_dict(model: BRDF, *, allow_plugin: bool = False) -> dict[str, Any]:
-    """JSON-serialisable Mitsuba scene-dict entry of ``model`` (native plugins; the gonio plugin if allowed)."""
-    _merl_refusal(model)
+def material_facts(model: BRDF, projection: NativeProjection | None = None) -> dict[str, Any]:
+    """What holds for the model whatever it was fitted to: channels, physics promises, albedo, Mitsuba paths."""
     mat = to_mitsuba(model)
-    if mat.native:
-        return _plain(copy.deepcopy(mat.bsdf))
-    if not allow_plugin:
-        raise ValueError(
-            f"{type(model).__name__} has no native Mitsuba plugin ({mat.note}); allow_plugin=True gives the "
-            f"{gonio_plugin.PLUGIN} plugin with the model as JSON, which renders only where gonio registered it"
-        )
-    return _plain(gonio_plugin.json_plugin_dict(model))
-
-
-def _comment(text: str) -> str:
-    # "--" may not occur inside an XML comment.
-    return "<!-- " + text.replace("--", "- -") + " -->"
-
-
-def _xml_lines(entry: dict[str, Any], tag: str, attrs: str, indent: str) -> list[str]:
-    """One Mitsuba object (``entry`` is a scene-dict entry) as XML lines."""
-    inner = indent + "    "
-    lines = [f"{indent}<{tag} type={quoteattr(str(entry['type']))}{attrs}>"]
-    for key, v in entry.items():
-        if key == "type":
-            continue
-        name = quoteattr(key)
-        if isinstance(v, bool):
-            lines.append(f'{inner}<boolean name={name} value="{str(v).lower()}"/>')
-        elif isinstance(v, int):
-            lines.append(f'{inner}<integer name={name} value="{v}"/>')
-        elif isinstance(v, float):
-            lines.append(f'{inner}<float name={name} value="{v!r}"/>')
-        elif isinstance(v, str):
-            lines.append(f"{inner}<string name={name} value={quoteattr(v)}/>")
-        elif isinstance(v, dict) and v.get("type") == "rgb":
-            lines.append(f'{inner}<rgb name={name} value="{", ".join(repr(float(x)) for x in v["value"])}"/>')
-        elif isinstance(v, dict) and v.get("type") in BSDF_PLUGINS:
-            lines += _xml_lines(v, "bsdf", f" name={name}", inner)
-        else:
-            raise ValueError(f"no Mitsuba XML form for property {key!r} = {v!r} of a {entry['type']!r} plugin")
-    lines.append(f"{indent}</{tag}>")
-    return lines
-
-
-def mitsuba_xml(model: BRDF, name: str = "material", *, version: str | None = None) -> str:
-    """Mitsuba 3 XML ``<bsdf id=name>`` element of ``model``; with ``version`` it loads on its own."""
-    _merl_refusal(model)
-    mat = to_mitsuba(model)
-    entry = mitsuba_dict(model, allow_plugin=True)
-    attrs = f" id={quoteattr(name)}" + ("" if version is None else f" version={quoteattr(version)}")
-    lines = _xml_lines(entry, "bsdf", attrs, "")
-    notes = [f"gonio export of {type(model).__name__}: {mat.note}"]
-    if not mat.native:
-        notes.append(
-            f"{gonio_plugin.PLUGIN} is gonio's Python plugin: this BSDF loads only in a Python process that "
-            "imported model.mitsuba.plugin under an rgb variant; stock Mitsuba cannot render it. "
-            "gltf_material.json holds the portable metal-roughness approximation and its error."
-        )
-    lines[1:1] = ["    " + _comment(n) for n in notes]
-    return "\n".join(lines) + "\n"
-
-
-def _scene_file(fragment: str, name: str) -> str:
-    """The XML file: the element inside a versioned scene, so other scenes can include it."""
-    body = "".join("    " + line + "\n" if line else "\n" for line in fragment.splitlines())
-    use = f'include it in a <scene version="{XML_VERSION}"> with <include filename="{FILES["mitsuba_xml"]}"/>'
-    return (
-        '<?xml version="1.0" encoding="utf-8"?>\n'
-        + _comment(f"{use}, then refer to the BSDF as <ref id=\"{name}\"/>") + "\n"
-        + f'<scene version="{XML_VERSION}">\n{body}</scene>\n'
-    )  # fmt: skip
-
-
-def material_facts(model: BRDF) -> dict[str, Any]:
-    """What holds for the model whatever it was fitted to: channels, physics promises, albedo, Mitsuba path."""
-    mat = to_mitsuba(model)
+    projection = projection or native_projection(model)
     # Quadrature cannot resolve a narrow lobe; models that declare one get importance-sampled Monte Carlo.
     method = "mc" if callable(getattr(model, "lobe", None)) else "quadrature"
     albedo, stderr = [], []
@@ -181,6 +103,10 @@ def material_facts(model: BRDF) -> dict[str, Any]:
             "evaluations": ALBEDO_EVALS,
         },
         "mitsuba": {"plugin": mat.plugin, "native": mat.native, "note": mat.note},
+        "mitsuba_stock": {
+            "plugin": projection.material.plugin, "exact": projection.exact, "note": projection.material.note,
+            "native_model": to_json_dict(projection.native_model), "error": projection.error,
+        },
     }  # fmt: skip
 
 
@@ -193,32 +119,92 @@ def _json_text(doc: dict[str, Any]) -> str:
     return json.dumps(doc, indent=2, allow_nan=False) + "\n"
 
 
+def _readme(model: BRDF, name: str, projection: NativeProjection, mr: MetalRoughnessFit, files: list[str]) -> str:
+    """The export's README: each file, how faithful it is, and how to use it."""
+    e = projection.error
+    per_channel = ", ".join(f"{x:.3%}" for x in e["rms_rel_per_channel"])
+    where = e["worst_at_deg"]
+    lines = [
+        f"# {name}: exports of a fitted {type(model).__name__}", "",
+        f"Written by gonio {gonio_version()}. BRDF values f_r in 1/sr (cosine excluded), angles in degrees.", "",
+        "| file | what it is |", "| --- | --- |",
+    ]
+    about = {
+        "material.json": "the fitted gonio model, exact (`model.serialize.from_json_dict` reads it back), with facts",
+        "mitsuba_bsdf.xml": "Mitsuba 3 BSDF for stock Mitsuba (no gonio needed): "
+                            f"`<include filename=\"mitsuba_bsdf.xml\"/>` then `<ref id=\"{name}\"/>`",
+        "mitsuba_bsdf.json": "the same BSDF as a Mitsuba scene-dict entry: `mi.load_dict(json.load(f))`",
+        "mitsuba_scene.xml": "a whole scene (a 5 cm patch under a point light): `mitsuba mitsuba_scene.xml`",
+        "mitsuba_gonio_plugin.xml": "the exact model through gonio's `gonio_model` plugin: renders only in a "
+                                    "Python process that imported `model.mitsuba.plugin` (stock Mitsuba refuses it)",
+        "gltf_material.json": "glTF 2.0 metal-roughness material object (a projection, error below)",
+        "material.gltf": "a glTF 2.0 asset, a 5 cm sample patch wearing that material; glTF viewers open it",
+        "material.binary": "the model tabulated at MERL's bin centres (MERL .binary)",
+        "README.md": "this file",
+    }  # fmt: skip
+    lines += [f"| `{f}` | {about[f]} |" for f in files]
+    lines += ["", "## Mitsuba", "", stock_note(model, projection) + ".", ""]
+    lines += [
+        f"Relative RMS difference sqrt(sum (f_mitsuba - f)^2 / sum f^2) over {e['pairs']} direction pairs "
+        f"(both zenith angles 0-80 deg in 5 deg steps, phi_o - phi_i 0-180 deg in 10 deg steps, phi_i 0, 45, 90 "
+        f"deg): **{e['rms_rel']:.3%}** (per channel {per_channel}); worst relative difference {e['worst_rel']:.2%} at "
+        f"theta_i {where['theta_i']:.0f}, theta_o {where['theta_o']:.0f}, phi_o - phi_i "
+        f"{where['phi_o_minus_phi_i']:.0f} deg. Evaluated by {e['evaluated_by']}.", "",
+    ]  # fmt: skip
+    if not projection.exact:
+        native = json.dumps(to_json_dict(projection.native_model))
+        lines += [f"The stock BSDF is the Mitsuba form of the gonio model `{native}`, fitted to the exported "
+                  "model's values; for renders that must be exact, use `mitsuba_gonio_plugin.xml` "
+                  "(`gonio analyze --mitsuba-plugin`) in a process with gonio.", ""]  # fmt: skip
+    m = mr.material
+    lines += [
+        "## glTF", "",
+        f"Metal-roughness projection: metallic {m.metallic:.4f}, roughness {m.roughness:.4f}; relative RMS "
+        f"difference of f cos(theta_i) cos(theta_o) over both hemispheres {mr.rms_rel:.2%}, worst {mr.worst_rel:.1%} "
+        f"within {GRAZING_DEG:g} deg (full numbers in the material's extras.projection_error).", "",
+    ]  # fmt: skip
+    return "\n".join(lines)
+
+
 def export_material(
-    model: BRDF, out_dir: str | os.PathLike[str], *, name: str = "material", merl: bool = False
+    model: BRDF,
+    out_dir: str | os.PathLike[str],
+    *,
+    name: str = "material",
+    merl: bool = False,
+    gonio_plugin: bool = False,
 ) -> dict[str, Path]:
     """Write the exports of ``model`` into ``out_dir`` (see the module docstring); returns the paths by kind.
 
-    Everything is computed before the first file is written, and each file is written atomically, so a
-    model that cannot be exported leaves ``out_dir`` as it was.
+    ``gonio_plugin`` adds mitsuba_gonio_plugin.xml (the exact model, for processes with gonio) where the
+    stock form is a projection. Everything is computed before the first file is written, and each file is
+    written atomically, so a model that cannot be exported leaves ``out_dir`` as it was.
     """
     if not isinstance(name, str) or not name.strip():
         raise ValueError(f"export_material: name = {name!r}; expected a non-empty string (the XML id and glTF name)")
-    _merl_refusal(model)
+    merl_refusal(model)
     out = Path(out_dir)
-    native = to_mitsuba(model).native
+    projection = native_projection(model)
+    mr = to_metal_roughness(model)
     material = {
         **to_json_dict(model),
         "conventions": CONVENTIONS,
-        "facts": material_facts(model),
+        "facts": material_facts(model, projection),
         "generator": f"gonio {gonio_version()}",
     }
+    gltf = gltf_material(mr, name)
     texts = {
         "material": _json_text(material),
-        "mitsuba_xml": _scene_file(mitsuba_xml(model, name), name),
-        "gltf": _json_text(gltf_material(to_metal_roughness(model), name)),
+        "mitsuba_xml": scene_file(mitsuba_xml(model, name, projection=projection), name),
+        "mitsuba_json": _json_text(mitsuba_dict(model, projection=projection)),
+        "mitsuba_scene": scene_xml(name, FILES["mitsuba_xml"]),
+        "gltf": _json_text(gltf),
+        "gltf_asset": _json_text(gltf_asset(gltf)),
     }
-    if native:
-        texts["mitsuba_json"] = _json_text(mitsuba_dict(model))
+    if gonio_plugin and not projection.exact:
+        texts["mitsuba_plugin_xml"] = scene_file(mitsuba_xml(model, name, plugin=True), name)
+    kinds = [*texts, *(["merl"] if merl else []), "readme"]
+    texts["readme"] = _readme(model, name, projection, mr, [FILES[k] for k in kinds])
     paths: dict[str, Path] = {}
     for kind, text in texts.items():
         paths[kind] = out / FILES[kind]
@@ -228,3 +214,19 @@ def export_material(
         paths["merl"] = out / FILES["merl"]
         write_merl(MerlTable.from_model(model), paths["merl"])
     return paths
+
+
+def export_notes(paths: dict[str, Path]) -> dict[str, str]:
+    """What the report says beside each export: for the Mitsuba files, exact or projected and the error."""
+    notes: dict[str, str] = {}
+    material = paths.get("material")
+    if material is None or not material.is_file():
+        return notes
+    stock = json.loads(material.read_text(encoding="utf-8")).get("facts", {}).get("mitsuba_stock")
+    if not stock:
+        return notes
+    rms = f"relative RMS BRDF difference {stock['error']['rms_rel']:.2%}, evaluated by Mitsuba"
+    how = "exact native mapping" if stock["exact"] else f"nearest stock BSDF ({stock['plugin']}), a projection"
+    for kind in ("mitsuba_xml", "mitsuba_json"):
+        notes[kind] = f"stock Mitsuba 3, no gonio needed: {how}, {rms}"
+    return notes

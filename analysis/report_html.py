@@ -81,8 +81,11 @@ def _looks_numeric(cell: str) -> bool:
 
 def _source(a: Analysis) -> str:
     s = a.source
-    rows: list[tuple[str, str]] = [("source", f"{'run directory' if s.kind == 'run' else 'MERL table'} {s.path}")]
-    if s.kind == "run":
+    what = {"run": "run directory", "adaptive": "adaptive sweep", "table": "samples table"}.get(s.kind, "MERL table")
+    rows: list[tuple[str, str]] = [("source", f"{what} {s.path}")]
+    # The run's [metadata] (sample, operator, notes and the lab's own keys) heads the page as it was written.
+    rows += [(k, ", ".join(map(str, v)) if isinstance(v, list) else str(v)) for k, v in s.metadata]
+    if s.kind in ("run", "adaptive"):
         rows += [
             ("run status", s.state + (f" ({s.stop_reason})" if s.stop_reason else "")),
             ("points", f"{s.measured} measured of {s.planned} planned; {s.unreachable} unreachable (not planned)"),
@@ -92,6 +95,8 @@ def _source(a: Analysis) -> str:
         ]  # fmt: skip
         if s.material:
             rows.append(("simulated material", s.material))
+    elif s.kind == "table":
+        rows.append(("samples", f"{s.measured} rows of the table"))
     else:
         rows.append(("samples", f"{s.measured} random bins (std errors assumed)"))
     if a.references:
@@ -144,23 +149,30 @@ def _figures(figs: Figures) -> str:
 
 _EXPORT_LABELS = {
     "material": "gonio model (JSON, model.serialize)",
-    "mitsuba_xml": "Mitsuba 3 BSDF, XML scene fragment",
-    "mitsuba_json": "Mitsuba 3 BSDF, scene dictionary (JSON)",
+    "mitsuba_xml": "Mitsuba 3 BSDF for stock Mitsuba, XML scene fragment",
+    "mitsuba_json": "Mitsuba 3 BSDF for stock Mitsuba, scene dictionary (JSON)",
+    "mitsuba_scene": "Mitsuba 3 scene: a patch of the material under a point light, renders as it is",
+    "mitsuba_plugin_xml": "the exact model for gonio's Mitsuba plugin (renders only where gonio is installed)",
     "gltf": "glTF 2.0 metal-roughness material (a projection: its error is in extras)",
+    "gltf_asset": "glTF 2.0 asset: a sample patch with that material, for glTF viewers",
+    "readme": "what each export is and how far each projection is from the model",
     "merl": "MERL .binary table",
 }
 
 
-def _exports(exports: Mapping[str, Path], page: Path) -> str:
+def _exports(exports: Mapping[str, Path], page: Path, notes: Mapping[str, str] | None = None) -> str:
     items = []
     for kind, path in exports.items():
         rel = os.path.relpath(path, page.parent)
-        label = escape(_EXPORT_LABELS.get(kind, kind))
+        label = escape((notes or {}).get(kind) or _EXPORT_LABELS.get(kind, kind))
         items.append(f'<li><a href="{escape(rel)}">{escape(path.name)}</a>: {label}</li>')
     return f"<ul>{''.join(items)}</ul>" if items else ""
 
 
-def render_html(a: Analysis, figs: Figures, exports: Mapping[str, Path] | None = None, page: Path = Path(".")) -> str:
+def render_html(
+    a: Analysis, figs: Figures, exports: Mapping[str, Path] | None = None, page: Path = Path("."),
+    notes: Mapping[str, str] | None = None,
+) -> str:
     """The report page as a string (see the module docstring for its order)."""
     r = a.selection.chosen
     name = a.source.path.name or str(a.source.path)
@@ -171,7 +183,7 @@ def render_html(a: Analysis, figs: Figures, exports: Mapping[str, Path] | None =
         f'<p class="verdict">{escape(a.verdict())}</p>', banner,
         "<h2>Source</h2>", _source(a),
         "<h2>Chosen model</h2>", _parameters(r, a),
-        "<h3>Exports of the chosen model</h3>" if exports else "", _exports(exports or {}, page),
+        "<h3>Exports of the chosen model</h3>" if exports else "", _exports(exports or {}, page, notes),
         "<h2>Model selection</h2>", _selection(a),
         "<h2>Warnings</h2>", f"<ul>{warns}</ul>" if warns else "<p>None.</p>",
         "<h2>Figures</h2>", _figures(figs),
@@ -184,7 +196,10 @@ def render_html(a: Analysis, figs: Figures, exports: Mapping[str, Path] | None =
     )
 
 
-def write_html(a: Analysis, figs: Figures, path: str | Path, exports: Mapping[str, Path] | None = None) -> Path:
-    """Write the report page atomically, linking the exported files; returns its path."""
-    text = render_html(a, figs, exports, Path(path))
+def write_html(
+    a: Analysis, figs: Figures, path: str | Path, exports: Mapping[str, Path] | None = None,
+    notes: Mapping[str, str] | None = None,
+) -> Path:
+    """Write the report page atomically, linking the exported files (``notes``: text per kind); returns its path."""
+    text = render_html(a, figs, exports, Path(path), notes)
     return write_atomic(Path(path), lambda tmp: tmp.write_text(text, encoding="utf-8"))

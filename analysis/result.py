@@ -32,7 +32,7 @@ class AnalysisError(ValueError):
 class SourceSummary:
     """What was analysed: a run (status, points measured/planned/unreachable, sweep, material) or a MERL file."""
 
-    kind: str  # "run" or "merl"
+    kind: str  # "run", "adaptive" (an adaptive sweep's rounds), "table" (a samples table alone) or "merl"
     path: Path
     state: str  # finished, stopped or running for a run; "file" for MERL
     stop_reason: str | None = None
@@ -45,20 +45,25 @@ class SourceSummary:
     sweep_name: str | None = None
     material: str | None = None
     notes: tuple[str, ...] = ()
+    #: The run's ``[metadata]`` (sample, operator, notes, free keys) as (key, value) pairs, values JSON.
+    metadata: tuple[tuple[str, Any], ...] = ()
 
     @property
     def warning(self) -> str | None:
         """The banner for an unfinished run ("run stopped: <reason>; N of M points"), else None."""
-        if self.kind != "run" or self.state == "finished":
+        if self.kind not in ("run", "adaptive") or self.state == "finished":
             return None
         of = f"{self.measured} of {self.planned} points"
+        if self.kind == "adaptive":
+            return f"adaptive sweep not finished: {self.stop_reason}; {of}"
         if self.state == "stopped":
             return f"run stopped: {self.stop_reason or 'no reason recorded'}; {of}"
         return f"run not finished (no status.json: still running or killed); {of}"
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form (for fit.json)."""
-        return {**dataclasses.asdict(self), "path": str(self.path), "notes": list(self.notes)}
+        return {**dataclasses.asdict(self), "path": str(self.path), "notes": list(self.notes),
+                "metadata": dict(self.metadata)}  # fmt: skip
 
 
 @dataclass(frozen=True)

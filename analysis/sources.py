@@ -1,13 +1,17 @@
-"""Sources of an analysis: a run directory or a MERL file, loaded into the samples a fit reads.
+"""Sources of an analysis: a run directory, an adaptive sweep, a samples table or a MERL file, as fit samples.
 
 A finished run is read from its ``samples.csv``; a run that stopped (or is still running) from its journal
 through the same ``rig.run.table.build_rows`` the runner uses at the end, so an unfinished run is analysed
-exactly as far as it got, with a warning saying so; a MERL ``.binary`` file by drawing random bins
-(``Samples.from_merl``, errors assumed), which is how MERL materials are imported for fitting and comparison.
+exactly as far as it got, with a warning saying so; an adaptive sweep's directory (``adaptive.json``) from
+its merged ``samples.csv``, or, unfinished, from every round's run read as above; a samples table
+(``samples.csv`` or ``samples.parquet``, e.g. an adaptive sweep's) on its own, or through the run or sweep
+directory that holds it; a MERL ``.binary`` file by drawing random bins (``Samples.from_merl``, errors
+assumed), which is how MERL materials are imported for fitting and comparison.
 """
 
 from __future__ import annotations
 
+import csv
 import warnings
 from pathlib import Path
 from typing import Any
@@ -15,10 +19,12 @@ from typing import Any
 from analysis.result import AnalysisError, Log, Reference, SourceSummary
 from model.fit.samples import FitError, Samples
 from model.merl import MerlFormatError, MerlTable, read_merl
+from rig.run.adaptive_state import AdaptiveStateError, is_adaptive, read_state, rig_of
 from rig.run.config import material_from
+from rig.run.config_schema import run_metadata
 from rig.run.journal import check_records
 from rig.run.session import configs_of, reference_settings
-from rig.run.store import JOURNAL, RunStore, RunStoreError
+from rig.run.store import JOURNAL, MANIFEST, RunStore, RunStoreError
 from rig.run.table import build_rows
 
 DEFAULT_MERL_SAMPLES = 20_000
@@ -39,8 +45,8 @@ def _check_complete(rows: list[dict[str, Any]], table: Path) -> None:
                                 f"journal {table.parent / JOURNAL} still holds every point)")  # fmt: skip
 
 
-def load_run(path: Path, log: Log, errors: str = "total") -> tuple[SourceSummary, Samples, list[Reference]]:
-    """A run directory's samples (its table, or its journal if unfinished), summary and the simulated truth."""
+def _run_rows(path: Path) -> tuple[RunStore, Any, Any, dict[str, Any], list[dict[str, Any]]]:
+    """(store, rig, sweep, status, rows) of a run directory: its table, or its journal if unfinished."""
     try:
         store = RunStore.read(path)
         status = store.status()
@@ -60,28 +66,122 @@ def load_run(path: Path, log: Log, errors: str = "total") -> tuple[SourceSummary
         cosine = bool(store.manifest.get("options", {}).get("include_cosine", False))
         rows = build_rows(records, rig.geometry.joint_names, albedo=ref.albedo if ref else None,
                           albedo_std_error=ref.albedo_std_error if ref else 0.0, include_cosine=cosine)  # fmt: skip
+    return store, rig, sweep, status, rows
+
+
+def _samples(rows: list[dict[str, Any]], path: Path, errors: str) -> Samples:
     if not rows:
-        raise AnalysisError(f"{path}: no measured points to analyse (journal {path / JOURNAL} holds none)")
+        raise AnalysisError(f"{path}: no measured points to analyse")
     try:
-        samples = Samples.from_table_rows(rows, source=str(path), errors=errors)
+        return Samples.from_table_rows(rows, source=str(path), errors=errors)
     except FitError as exc:
         raise AnalysisError(f"{path}: cannot read the samples: {exc}") from exc
-    refs, material = [], None
-    if rig.file.link.kind == "simulated":
-        material = _describe_material(rig.file.simulation.material)
-        try:
-            # The simulated tile's albedo is exactly as stated: against the truth, its error is not an error.
-            exact = Samples.from_table_rows(rows, source=str(path), errors="readings").std_error
-            refs.append(Reference("simulated material (truth)", material_from(rig), exact))
-        except ValueError as exc:
-            warnings.warn(f"{path}: the simulated material cannot be built: {exc}", stacklevel=2)
+
+
+def _truth(rig: Any, rows: list[dict[str, Any]], path: Path) -> tuple[str | None, list[Reference]]:
+    """The simulated material's description and, as a reference, the material itself (simulated rigs only)."""
+    if rig.file.link.kind != "simulated":
+        return None, []
+    material = _describe_material(rig.file.simulation.material)
+    try:
+        # The simulated tile's albedo is exactly as stated: against the truth, its error is not an error.
+        exact = Samples.from_table_rows(rows, source=str(path), errors="readings").std_error
+        return material, [Reference("simulated material (truth)", material_from(rig), exact)]
+    except ValueError as exc:
+        warnings.warn(f"{path}: the simulated material cannot be built: {exc}", stacklevel=2)
+        return material, []
+
+
+def load_run(path: Path, log: Log, errors: str = "total") -> tuple[SourceSummary, Samples, list[Reference]]:
+    """A run directory's samples (its table, or its journal if unfinished), summary and the simulated truth."""
+    store, rig, sweep, status, rows = _run_rows(path)
+    if not rows:
+        raise AnalysisError(f"{path}: no measured points to analyse (journal {path / JOURNAL} holds none)")
+    samples = _samples(rows, path, errors)
+    material, refs = _truth(rig, rows, path)
     summary = SourceSummary(
         "run", path, status["state"], status.get("reason"), len(rows), store.manifest.get("points"),
         len(store.manifest.get("unreachable", [])), int(samples.lower_bound.sum()), sweep.file.sweep.kind,
         rig.file.name, sweep.file.name, material, samples.notes,
+        tuple(store.manifest.get("metadata", run_metadata(rig.file, sweep.file)).items()),
     )  # fmt: skip
     log(f"loaded run {path}: {len(rows)} points ({status['state']}), {samples.n} usable samples")
     return summary, samples, refs
+
+
+def load_adaptive(path: Path, log: Log, errors: str = "total") -> tuple[SourceSummary, Samples, list[Reference]]:
+    """An adaptive sweep's samples: its merged table, or every round so far if it did not finish."""
+    try:
+        state = read_state(path)
+        rig = rig_of(state, path)
+    except (AdaptiveStateError, ValueError) as exc:
+        raise AnalysisError(f"{path}: not a readable adaptive sweep: {exc}") from exc
+    table = path / "samples.csv"
+    finished = state["state"] == "finished" and table.is_file()
+    if finished:
+        rows = _csv_rows(table)
+    else:  # every round's run, the last one as far as its journal goes
+        rows = []
+        for number, directory in enumerate(sorted(p for p in path.glob("round-*") if (p / MANIFEST).is_file())):
+            rows += [{**row, "round": number} for row in _run_rows(directory)[4]]
+    samples = _samples(rows, path, errors)
+    material, refs = _truth(rig, rows, path)
+    budget = state["settings"].get("budget")
+    rounds = len({str(r.get("round")) for r in rows})
+    summary = SourceSummary(
+        "adaptive", path, "finished" if finished else "stopped",
+        None if finished else f"interrupted after {rounds} round(s); gonio adaptive --resume {path} continues it",
+        len(rows), budget, 0, int(samples.lower_bound.sum()), "adaptive", rig.file.name,
+        f"adaptive sweep, model {state['model']}", material, samples.notes, tuple(state.get("metadata", {}).items()),
+    )  # fmt: skip
+    log(f"loaded adaptive sweep {path}: {len(rows)} captures in {rounds} round(s), {samples.n} usable samples")
+    return summary, samples, refs
+
+
+def _csv_rows(table: Path) -> list[dict[str, Any]]:
+    try:
+        with open(table, encoding="utf-8", newline="") as fh:
+            rows: list[dict[str, Any]] = list(csv.DictReader(fh))
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise AnalysisError(f"{table}: cannot read the samples table: {exc}") from exc
+    _check_complete(rows, table)
+    return rows
+
+
+def load_table(path: Path, log: Log, errors: str = "total") -> tuple[SourceSummary, Samples, list[Reference]]:
+    """A samples table (samples.csv or samples.parquet): through its run or adaptive sweep where it has one."""
+    parent = path.parent
+    if path.stem == "samples" and is_adaptive(parent):
+        return load_adaptive(parent, log, errors)
+    if path.name == "samples.csv" and (parent / MANIFEST).is_file():
+        return load_run(parent, log, errors)
+    if path.suffix == ".parquet":
+        try:
+            import pyarrow.parquet as pq
+
+            rows: list[dict[str, Any]] = pq.read_table(path).to_pylist()
+        except (OSError, ValueError, ImportError) as exc:
+            raise AnalysisError(f"{path}: cannot read the Parquet samples table: {exc}") from exc
+    else:
+        rows = _csv_rows(path)
+    samples = _samples(rows, path, errors)
+    summary = SourceSummary("table", path, "file", measured=len(rows), lower_bound=int(samples.lower_bound.sum()),
+                            notes=samples.notes)  # fmt: skip
+    log(f"loaded samples table {path}: {len(rows)} rows, {samples.n} usable samples")
+    return summary, samples, []
+
+
+def source_kind(path: Path) -> str:
+    """What ``path`` is as an analysis source: run, adaptive, table or merl (or missing / unknown, with why)."""
+    if path.is_dir():
+        if (path / MANIFEST).is_file():
+            return "run"
+        if is_adaptive(path):
+            return "adaptive"
+        return "unknown"
+    if not path.exists():
+        return "missing"
+    return "table" if path.suffix in (".csv", ".parquet") else "merl"
 
 
 def read_merl_source(path: Path, what: str) -> MerlTable:

@@ -7,7 +7,18 @@ import sys
 from pathlib import Path
 
 from gonio.cli_errors import CliError
-from gonio.cli_run import EXIT_OK, _rig, _sigterm_as_interrupt, _stopped
+from gonio.cli_run import _rig, _sigterm_as_interrupt, _stopped, _summary, resume_adaptive_dir
+
+
+def _metadata(pairs: list[str] | None) -> dict[str, str]:
+    """--metadata KEY=VALUE options as the sweep's [metadata] (an adaptive sweep has no sweep file)."""
+    out = {}
+    for pair in pairs or []:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip():
+            raise CliError(f"--metadata {pair!r}: expected KEY=VALUE, e.g. sample='gold foil #7'")
+        out[key.strip()] = value
+    return out
 
 
 def _adaptive(args: argparse.Namespace) -> int:
@@ -15,6 +26,13 @@ def _adaptive(args: argparse.Namespace) -> int:
     from rig.run.adaptive import AdaptiveSettings, run_adaptive
     from rig.run.runner import RunStopped
 
+    if args.resume:
+        if args.out or args.rig:
+            raise CliError("--resume DIR continues a sweep with the rig and settings it started with; "
+                           "give no --out or --rig with it")  # fmt: skip
+        return resume_adaptive_dir(args.resume)
+    if not args.out:
+        raise CliError("gonio adaptive: --out DIR is required (or --resume DIR to continue a sweep)")
     spec = None if args.model == "auto" else parse_models(args.model)[0]
     try:
         settings = AdaptiveSettings(budget=args.budget, initial=args.initial, batch=args.batch,
@@ -26,14 +44,10 @@ def _adaptive(args: argparse.Namespace) -> int:
     print(f"adaptive sweep into {args.out}: {settings.budget} captures, model {args.model}", file=sys.stderr)
     try:
         with _sigterm_as_interrupt():
-            result = run_adaptive(rig, Path(args.out), spec, settings)
+            result = run_adaptive(rig, Path(args.out), spec, settings, metadata=_metadata(args.metadata))
     except RunStopped as exc:
         return _stopped(exc)
-    last = result.rounds[-1]
-    print(f"{last.captures} captures in {len(result.rounds)} rounds, {result.rig_time_s / 60:.1f} min rig time; "
-          f"table {result.table}")  # fmt: skip
-    print(last.fit.summary())
-    return EXIT_OK
+    return _summary(result)
 
 
 def add_adaptive_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -43,12 +57,15 @@ def add_adaptive_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]
         description="An adaptive sweep: a space-filling first round, then rounds chosen from reachable "
         "candidates to lower the fitted BRDF's expected error the most (first order, from the fit's "
         "Jacobian). Each round is an ordinary run in OUT/round-NN; OUT/samples.csv holds every round's rows "
-        "and OUT/adaptive.json the fits. Analyse it with `gonio analyze` on any round or fit OUT/samples.csv.",
+        "and OUT/adaptive.json the settings and fits. An interrupted sweep continues with --resume OUT (or "
+        "gonio resume OUT); gonio analyze OUT analyses every round together.",
         epilog="Example: gonio adaptive --rig examples/rig_simulated.toml --out runs/gold-adaptive "
         "--model ggx_conductor --budget 100",
     )  # fmt: skip
     p.add_argument("--rig", help="rig file (TOML); default: the built-in simulated rig")
-    p.add_argument("--out", required=True, help="directory to create (must not exist or be empty)")
+    p.add_argument("--out", help="directory to create (must not exist or be empty)")
+    p.add_argument("--resume", metavar="DIR", help="continue the interrupted adaptive sweep in DIR with the rig, "
+                   "model and settings it started with (no other options)")  # fmt: skip
     p.add_argument("--model", default="auto", help="model fitted between rounds (a name gonio analyze --models "
                    "accepts), or auto: the model selection's choice each round (default)")  # fmt: skip
     p.add_argument("--budget", type=int, default=100, help="captures in all (default 100)")
@@ -61,4 +78,8 @@ def add_adaptive_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]
                    "wants them about 2.5x the SNR a single long run would use")  # fmt: skip
     p.add_argument("--max-theta", type=float, default=70.0, help="largest zenith of any capture, deg (default 70)")
     p.add_argument("--seed", type=int, default=0, help="seed of the candidate pool (default 0)")
+    p.add_argument("--metadata", action="append", metavar="KEY=VALUE",
+                   help="what the sweep is about (sample=..., operator=..., notes=..., or a key of your own; "
+                   "repeat for more), laid over the rig file's [metadata]: into every round, the tables and the "
+                   "report")  # fmt: skip
     p.set_defaults(func=_adaptive)

@@ -79,12 +79,13 @@ def _analyze(args: argparse.Namespace) -> int:
     a = load_and_fit(args.source, models=models, loss=args.loss, starts=args.starts, samples=args.samples,
                      seed=args.seed, compare=args.compare, log=log, errors=args.errors)  # fmt: skip
     if not whole:
-        page = write_report(a, out, y_scale=args.y_scale, merl=args.merl, log=log)
+        page = write_report(a, out, y_scale=args.y_scale, merl=args.merl, log=log, mitsuba_plugin=args.mitsuba_plugin)
     else:
         with staged_dir(out) as tmp:
             # The progress lines name where the files will be, not the temporary directory they are written in.
             shown = None if log is None else (lambda line: stderr_log(line.replace(str(tmp), str(out))))
-            page = out / write_report(a, tmp, y_scale=args.y_scale, merl=args.merl, log=shown).relative_to(tmp)
+            page = out / write_report(a, tmp, y_scale=args.y_scale, merl=args.merl, log=shown,
+                                          mitsuba_plugin=args.mitsuba_plugin).relative_to(tmp)
     print(page)
     print(a.verdict())
     return EXIT_OK
@@ -101,7 +102,8 @@ def add_analyze_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser])
         epilog="Example: gonio analyze runs/gold --models lambert,lambert_ggx,ggx_conductor  (writes "
         "runs/gold/analysis/index.html); gonio analyze gold-metallic-paint.binary --samples 20000",
     )  # fmt: skip
-    p.add_argument("source", help="run directory or MERL .binary file")
+    p.add_argument("source", help="run directory, adaptive sweep directory, samples.csv / samples.parquet table, "
+                   "or MERL .binary file")
     p.add_argument("--out", help="report directory (default: RUN/analysis, or <name>-analysis beside a MERL file)")
     p.add_argument("--force", action="store_true",
                    help="replace an existing analysis in the report directory (without it gonio analyze refuses)")
@@ -127,3 +129,6 @@ def add_fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--y-scale", default="auto", choices=("auto", "log", "linear"),
                    help="slices' y axis (default auto: log when the values span more than 50x)")  # fmt: skip
     p.add_argument("--merl", action="store_true", help="also export the chosen model as a MERL .binary (35 MB)")
+    p.add_argument("--mitsuba-plugin", action="store_true",
+                   help="also export the exact model for gonio's Mitsuba plugin (export/mitsuba_gonio_plugin.xml; "
+                   "renders only where gonio is installed) when the stock-Mitsuba export is a projection")  # fmt: skip

@@ -16,6 +16,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
 # Re-exported: the exit codes have always been importable from here (see docs/architecture.md).
 from gonio.cli_errors import EXIT_BAD_INPUT as EXIT_BAD_INPUT
@@ -82,9 +83,36 @@ def _run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def resume_adaptive_dir(directory: str) -> int:
+    """Continue the interrupted adaptive sweep in ``directory`` (``gonio adaptive --resume``, ``gonio resume``)."""
+    from analysis.ladder import parse_models
+    from rig.run.adaptive import resume_adaptive
+    from rig.run.runner import RunStopped
+
+    print(f"resuming the adaptive sweep in {directory}", file=sys.stderr)
+    try:
+        with _sigterm_as_interrupt():
+            result = resume_adaptive(Path(directory), lambda name: parse_models(name)[0])
+    except RunStopped as exc:
+        return _stopped(exc)
+    return _summary(result)
+
+
+def _summary(result: Any) -> int:
+    last = result.rounds[-1]
+    print(f"{last.captures} captures in {len(result.rounds)} rounds, {result.rig_time_s / 60:.1f} min rig time; "
+          f"table {result.table}")  # fmt: skip
+    print(last.fit.summary())
+    return EXIT_OK
+
+
 def _resume(args: argparse.Namespace) -> int:
+    from rig.run.adaptive_state import is_adaptive
     from rig.run.runner import RunStopped
     from rig.run.session import RunFinished, resume_run
+
+    if is_adaptive(args.run):  # an adaptive sweep's directory: its rounds, not one run
+        return resume_adaptive_dir(args.run)
 
     try:
         with _sigterm_as_interrupt():
@@ -154,7 +182,7 @@ def add_run_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "lacks. The table at the end equals that of an uninterrupted run.",
         epilog="Example: gonio resume runs/gold",
     )  # fmt: skip
-    resume.add_argument("run", help="run directory")
+    resume.add_argument("run", help="run directory (or an adaptive sweep's directory)")
     resume.add_argument("--quiet", action="store_true", help="no progress bar")
     resume.set_defaults(func=_resume)
     demo = sub.add_parser(

@@ -12,15 +12,23 @@ densely near 0 (the specular lobe, where a narrow peak hides between cosine-rand
 phi_i = 0 for isotropic samples and filtered by the rig's kinematics. The first round is a space-filling
 pick over the candidates in (theta_h, theta_d, phi_d), since there is no fit to ask yet.
 
-Written to OUT: ``samples.csv`` (every round's table rows, with a ``round`` column; ``samples.parquet`` beside
-it) and ``adaptive.json`` (per round: points, rig time, the fit's parameters, the measured and predicted errors).
+Written to OUT: ``samples.csv`` (every round's table rows, with a ``round`` column; ``samples.parquet`` and
+``samples.schema.json`` beside it) and ``adaptive.json`` (:mod:`rig.run.adaptive_state`: the settings, model
+and rig a resume needs, and per round: points, rig time, the fit's parameters, the measured and predicted errors).
+
+Resume (:func:`resume_adaptive`, ``gonio adaptive --resume OUT`` or ``gonio resume OUT``). Every step but the
+measuring is a function of the settings and the rounds' tables (the pool is seeded, the fits are seeded and
+deterministic), so a resume replays the sweep: rounds whose run finished are read back, the round that was
+interrupted is resumed as any run is (its journal keeps what it measured), and the rest are measured. Each
+replayed round's points are checked against its run's manifest, so a sweep whose settings or rig changed is
+refused instead of continued with other points. A resumed sweep ends with the table of an uninterrupted one
+(but for the ``utc`` column: when each point was really measured).
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
-import json
 import sys
 import warnings
 from collections.abc import Callable, Sequence
@@ -47,8 +55,10 @@ from model.fit.solve import FitResult, fit
 from model.fit.spec import FitSpec
 from model.geometry import degrees_to_vector
 from rig.instrument.kinematics import solve_degrees
+from rig.run.adaptive_state import AdaptiveStateError, new_state, read_state, rig_of, write_state
 from rig.run.config import ConfigError, RigConfig, parse, sweep_config
 from rig.run.config_schema import SweepFile
+from rig.run.store import RunStore, RunStoreError
 from rig.run.sweeps import directions_to_half_diff, half_diff_to_directions
 from rig.run.table_parquet import write_beside
 
@@ -183,16 +193,50 @@ def _fit(samples: Samples, spec: FitSpec | None, starts: int, seed: int) -> tupl
         return sel.chosen, next(s for s in default_ladder() if s.name == sel.chosen_name)
 
 
-def measure_points(rig: RigConfig, points: FloatArray, out: Path, snr: float) -> tuple[list[dict[str, Any]], float]:
-    """Run the points (N, 4) in degrees as a list sweep into ``out``: the table's rows and the rig time (s)."""
+def measure_points(
+    rig: RigConfig, points: FloatArray, out: Path, snr: float, metadata: dict[str, Any] | None = None
+) -> tuple[list[dict[str, Any]], float]:
+    """Run the points (N, 4) in degrees as a list sweep into ``out``: the table's rows and the rig time (s).
+
+    Where ``out`` already holds this round's run, it is read back (finished) or resumed (stopped or killed);
+    its points must be ``points``, or AdaptiveStateError says the sweep changed.
+    """
     from rig.run.session import start_run
 
+    if out.exists():
+        return _existing_round(out, points)
     table = {"name": f"list sweep {out.name}", "sweep": {"kind": "list", "points": points.tolist()},
-             "capture": {"target_snr": snr}}  # fmt: skip
+             "capture": {"target_snr": snr}, "metadata": metadata or {}}  # fmt: skip
     sweep = sweep_config(parse(table, SweepFile, f"<{out.name}>"), f"<{out.name}>")
     summary = start_run(rig, sweep, out, progress=False)
-    with open(summary.table, newline="") as fh:
-        return list(csv.DictReader(fh)), summary.rig_time_s
+    return _rows(Path(summary.table)), summary.rig_time_s
+
+
+def _rows(table: Path) -> list[dict[str, Any]]:
+    with open(table, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _existing_round(out: Path, points: FloatArray) -> tuple[list[dict[str, Any]], float]:
+    """A round found on disk by a resume: check its points, finish it if it stopped, return rows and rig time."""
+    from rig.run.session import resume_run
+
+    try:
+        store = RunStore.read(out)
+    except RunStoreError as exc:
+        raise AdaptiveStateError(f"{out}: this round's run cannot be read ({exc})") from None
+    planned = np.asarray(store.manifest.get("sweep", {}).get("sweep", {}).get("points", []), dtype=float)
+    if planned.shape != points.shape or not np.allclose(planned, points, rtol=0.0, atol=1e-9):
+        raise AdaptiveStateError(
+            f"{out}: its run measured other points than this sweep chooses for the round: the settings, the rig or "
+            "gonio changed since it started; resume with the same gonio, or start a new sweep"
+        )
+    if store.status().get("state") != "finished":
+        resume_run(out, progress=False)
+        store = RunStore.read(out)
+    # Rig time of the whole round, resumed or not: the run time of its journal's last record.
+    times = [float(r["run_time_s"]) for r in store.records() if "run_time_s" in r]
+    return _rows(out / "samples.csv"), max(times, default=0.0)
 
 
 def round_rig(rig: RigConfig, index: int) -> RigConfig:
@@ -226,13 +270,57 @@ def run_adaptive(
     pairs: ErrorPairs | None = None,
     on_round: Callable[[Round], None] | None = None,
     log: Callable[[str], None] | None = None,
+    metadata: dict[str, Any] | None = None,
 ) -> AdaptiveResult:
-    """Measure rounds into OUT/round-NN until the budget is spent; spec None chooses the model each round."""
+    """Measure rounds into OUT/round-NN until the budget is spent; spec None chooses the model each round.
+
+    ``metadata``: the sweep's ``[metadata]`` (sample, operator, notes, ...), laid over the rig file's.
+    """
     s = settings or AdaptiveSettings()
     out = Path(out)
     if out.exists() and any(out.iterdir()):
-        raise ConfigError(f"{out}: exists and is not empty; an adaptive sweep needs a fresh directory")
+        raise ConfigError(f"{out}: exists and is not empty; an adaptive sweep needs a fresh directory "
+                         "(an interrupted one continues with gonio adaptive --resume)")  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
+    meta = {**rig.file.metadata.as_dict(), **(metadata or {})}
+    doc = new_state(rig, spec.name if spec is not None else "auto", s, meta)
+    write_state(out, doc)
+    return _rounds(rig, out, spec, s, doc, pairs=pairs, on_round=on_round, log=log)
+
+
+def resume_adaptive(
+    out: str | Path,
+    spec_of: Callable[[str], FitSpec | None],
+    *,
+    pairs: ErrorPairs | None = None,
+    on_round: Callable[[Round], None] | None = None,
+    log: Callable[[str], None] | None = None,
+) -> AdaptiveResult:
+    """Continue an interrupted adaptive sweep in ``out`` (see the module docstring); ``spec_of`` turns the model
+    name its state records (``"auto"``: None) back into a FitSpec."""
+    out = Path(out)
+    doc = read_state(out)
+    if doc["state"] == "finished":
+        raise AdaptiveStateError(f"{out}: the adaptive sweep is finished ({out / 'samples.csv'}); nothing to resume")
+    try:
+        s = AdaptiveSettings(**doc["settings"])
+    except (TypeError, ValueError) as exc:
+        raise AdaptiveStateError(f"{out / 'adaptive.json'}: settings: {exc}") from None
+    spec = None if doc["model"] == "auto" else spec_of(str(doc["model"]))
+    return _rounds(rig_of(doc, out), out, spec, s, doc, pairs=pairs, on_round=on_round, log=log)
+
+
+def _rounds(
+    rig: RigConfig,
+    out: Path,
+    spec: FitSpec | None,
+    s: AdaptiveSettings,
+    doc: dict[str, Any],
+    *,
+    pairs: ErrorPairs | None,
+    on_round: Callable[[Round], None] | None,
+    log: Callable[[str], None] | None,
+) -> AdaptiveResult:
     say = log or (lambda msg: print(msg, file=sys.stderr))
     pairs = pairs or error_pairs(max_theta_deg=s.max_theta_deg, seed=s.seed + 1)
     pool = candidate_points(rig.geometry, s.candidates, max_theta_deg=s.max_theta_deg, seed=s.seed)
@@ -246,7 +334,7 @@ def run_adaptive(
     while True:
         r = len(result.rounds)
         directory = out / f"round-{r:02d}"
-        new_rows, rig_s = measure_points(round_rig(rig, r), pool[todo], directory, s.target_snr)
+        new_rows, rig_s = measure_points(round_rig(rig, r), pool[todo], directory, s.target_snr, doc.get("metadata"))
         pool = np.delete(pool, todo, axis=0)
         rows += [{**row, "round": r} for row in new_rows]
         # Weighted by each capture's own error: the design trades SNR against position, and the common
@@ -258,6 +346,7 @@ def run_adaptive(
             raise FitError(f"{directory}: round {r} cannot be fitted ({len(rows)} samples): {exc}") from None
         rnd = Round(r, len(rows), rig_s, res, predicted, directory)
         result.rounds.append(rnd)
+        write_state(out, {**doc, "rounds": _round_docs(result)})
         say(f"round {r}: {len(rows)} captures, {rig_s:.0f} s rig time, {used.name} chi2/dof {res.reduced_chi2:.2f}")
         if on_round is not None:
             on_round(rnd)
@@ -266,21 +355,24 @@ def run_adaptive(
             break
         todo, before, predicted = next_points(res, used, samples, pool, k, pairs)
         say(f"  next {k} points: predicted relative BRDF error {before:.2e} -> {predicted:.2e}")
-    result.table = _write(out, rows, result)
+    result.table = _write(out, rows, result, doc)
     return result
 
 
-def _write(out: Path, rows: Sequence[dict[str, Any]], result: AdaptiveResult) -> Path:
+def _round_docs(result: AdaptiveResult) -> list[dict[str, Any]]:
+    return [{"round": r.index, "captures": r.captures, "rig_time_s": r.rig_time_s, "model": r.fit.spec,
+             "params": dict(zip(r.fit.names, r.fit.values.tolist(), strict=True)),
+             "reduced_chi2": r.fit.reduced_chi2, "predicted_error": r.predicted_error,
+             "directory": str(r.directory)} for r in result.rounds]  # fmt: skip
+
+
+def _write(out: Path, rows: Sequence[dict[str, Any]], result: AdaptiveResult, doc: dict[str, Any]) -> Path:
     table = out / "samples.csv"
     names = list(dict.fromkeys(k for row in rows for k in row))
     with open(table, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=names)
         w.writeheader()
         w.writerows(rows)
-    write_beside(table, rows)
-    doc = [{"round": r.index, "captures": r.captures, "rig_time_s": r.rig_time_s, "model": r.fit.spec,
-            "params": dict(zip(r.fit.names, r.fit.values.tolist(), strict=True)),
-            "reduced_chi2": r.fit.reduced_chi2, "predicted_error": r.predicted_error,
-            "directory": str(r.directory)} for r in result.rounds]  # fmt: skip
-    (out / "adaptive.json").write_text(json.dumps({"rounds": doc}, indent=2, allow_nan=True) + "\n")
+    write_beside(table, rows, doc.get("metadata"))
+    write_state(out, {**doc, "state": "finished", "rounds": _round_docs(result)})
     return table

@@ -7,11 +7,13 @@ and turns pydantic's errors into messages that name the file, the key, the value
 Rig file tables: ``[geometry]`` (and ``[geometry.limits]``), ``[link]``, ``[axes.<joint>]``, ``[camera]``
 (``[camera.noise]``, ``[camera.options]``), ``[reference]``, ``[simulation]`` (``[simulation.material]``,
 ``[simulation.sensor]``, ``[simulation.misalignment]``). Sweep file tables:
-``[sweep]`` and ``[capture]``. See examples/*.toml for annotated files.
+``[sweep]`` and ``[capture]``. Both files may have ``[metadata]`` (``sample``, ``operator``, ``notes`` and free
+keys), which a run carries into its manifest, its tables and the report. See examples/*.toml for annotated files.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -380,10 +382,63 @@ class Simulation(Strict):
     link: Literal["dynamixel", "grbl"] = "dynamixel"
 
 
+MetaValue = str | int | float | bool
+
+
+class Metadata(Strict):
+    """``[metadata]``: what the data are about, carried unchanged into the manifest, the tables and the report.
+
+    ``sample``: what is measured; ``operator``: who measured it; ``notes``: free text; any other key is kept as
+    given, if its value is a string, number, boolean, date or a list of those (a table is refused: metadata
+    stays one level deep, so every key reads as one line). Dates become ISO 8601 strings.
+    """
+
+    model_config = ConfigDict(extra="allow", strict=True, frozen=True)
+
+    sample: str | None = None
+    operator: str | None = None
+    notes: str | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _plain_values(cls, data: Any) -> Any:
+        if not isinstance(data, dict):
+            return data
+        out: dict[str, Any] = {}
+        for key, value in data.items():
+            if isinstance(value, list | tuple):
+                out[key] = tuple(_meta_value(key, v) for v in value)
+            else:
+                out[key] = _meta_value(key, value)
+        return out
+
+    def as_dict(self) -> dict[str, Any]:
+        """The keys that are set, lists as lists (plain JSON)."""
+        keys = {"sample": self.sample, "operator": self.operator, "notes": self.notes, **(self.model_extra or {})}
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in keys.items() if v is not None}
+
+
+def _meta_value(key: str, value: Any) -> MetaValue:
+    if hasattr(value, "isoformat"):  # TOML dates and times
+        return str(value.isoformat())
+    if isinstance(value, float) and not math.isfinite(value):  # NaN and inf cannot travel through JSON
+        raise ValueError(f"{key} = {value}: expected a finite number, a string or a boolean")
+    if not isinstance(value, str | int | float | bool):
+        raise ValueError(f"{key} = {repr(value)[:80]}: expected a string, number, boolean, date or a list of those "
+                         "(metadata is one level deep: no tables)")  # fmt: skip
+    return value
+
+
+def run_metadata(rig: RigFile, sweep: SweepFile) -> dict[str, Any]:
+    """A run's metadata: the rig file's ``[metadata]`` overlaid with the sweep file's (its keys win)."""
+    return {**rig.metadata.as_dict(), **sweep.metadata.as_dict()}
+
+
 class RigFile(Strict):
     """A rig file: the hardware (or its simulation) a sweep runs on."""
 
     name: str = "rig"
+    metadata: Metadata = Metadata()
     geometry: Geometry = Geometry()
     link: Link = Field(default_factory=Link)
     axes: dict[str, AxisTable] = Field(default_factory=dict)
@@ -446,5 +501,6 @@ class SweepFile(Strict):
     """A sweep file: what to measure and how to capture it."""
 
     name: str = "sweep"
+    metadata: Metadata = Metadata()
     sweep: Sweep
     capture: Capture = Capture()

@@ -441,7 +441,8 @@ class Runner:
                           albedo=ref.albedo if ref else None, albedo_std_error=ref.albedo_std_error if ref else 0.0,
                           include_cosine=self.options.include_cosine)  # fmt: skip
         path = self.store.write_table(rows)
-        write_beside(path, rows)  # samples.parquet, for tools that read Parquet
+        # samples.schema.json and samples.parquet, with the run's [metadata]
+        write_beside(path, rows, self.store.manifest.get("metadata"))
         self.store.mark_finished({"points": len(rows), "skipped": len(self.plan.skipped)})
         return str(path)
 

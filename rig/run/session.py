@@ -24,7 +24,7 @@ from rig.instrument.kinematics_types import UnreachableError
 from rig.run.backends import Instruments, StartPose, backend
 from rig.run.calibrate import camera_flat_field, camera_noise
 from rig.run.config import ConfigError, RigConfig, SweepConfig, parse, rig_config, sweep_config
-from rig.run.config_schema import RigFile, SweepFile
+from rig.run.config_schema import RigFile, SweepFile, run_metadata
 from rig.run.journal import check_records
 from rig.run.measure import CaptureSettings
 from rig.run.plan import Plan, plan_sweep
@@ -121,6 +121,7 @@ def manifest(rig: RigConfig, sweep: SweepConfig, plan: Plan, run_options: RunOpt
         "options": {"move_timeout_s": run_options.move_timeout_s, "on_stop": run_options.on_stop,
                     "save_images": run_options.save_images, "include_cosine": run_options.include_cosine},
         "geometry_calibration": rig.calibration.snapshot() if rig.calibration is not None else None,
+        "metadata": run_metadata(rig.file, sweep.file),
     }  # fmt: skip
 
 

@@ -12,10 +12,12 @@ Columns: the sweep index; measured and target BRDF angles (deg); the joint angle
 channel r, g, b: the BRDF (1/sr) with its standard error and the error without the reference albedo's
 common part, and the raw reading (counts/s at gain 1) with its error; whether the value is a lower
 bound (saturated pixels); whether the ROI was dark (no light detected even after metering: the value is
-noise about zero); the frames and their total exposure (s); the standard uncertainty of the measured
-angles (``theta_i_std_deg`` ... ``phi_o_std_deg``, deg) and the covariance of the local directions' tangent
-components (``direction_cov``, a JSON 4 x 4 over wi_x, wi_y, wo_x, wo_y; see
-``rig.instrument.direction_uncertainty``), empty for journals written before points carried them.
+noise about zero); the frames, their total exposure (s) and each one's (a JSON array, s); the standard
+uncertainty of the measured angles (``theta_i_std_deg`` ... ``phi_o_std_deg``, deg) and the covariance of the
+local directions' tangent components (``direction_cov``, a JSON 4 x 4 over wi_x, wi_y, wo_x, wo_y; see
+``rig.instrument.direction_uncertainty``), empty for journals written before points carried them; the UTC time
+the point was recorded (``utc``, ISO 8601). Units and meanings of every column: ``rig.run.table_parquet.column``
+(and the table's ``samples.schema.json``).
 """
 
 from __future__ import annotations
@@ -125,7 +127,9 @@ def build_rows(
         row["dark"] = bool(p.get("dark", False))  # journals before the flag existed: not known to be dark
         row["n_frames"] = len(p["exposures_s"])
         row["total_exposure_s"] = float(sum(p["exposures_s"]))
-        row["exposures_s"] = ";".join(repr(float(t)) for t in p["exposures_s"])
+        # A JSON array: one cell that any CSV reader keeps whole and json.loads turns into a list.
+        row["exposures_s"] = json.dumps([float(t) for t in p["exposures_s"]])
         row |= _direction_columns(p)
+        row["utc"] = p.get("utc")
         rows.append(row)
     return rows

@@ -9,6 +9,13 @@ through ``parquet_kv_metadata``). ``gonio.table`` names the layout (``TABLE_FORM
 
 Rows may hold typed values (``rig.run.table.build_rows``) or the CSV's strings (a table read back, the
 adaptive sweep's merged rows): each column's type follows from its name, so both give the same file.
+
+The run's ``[metadata]`` (sample, operator, notes, free keys; ``rig.run.config_schema.Metadata``) travels as
+the file-level key ``gonio.metadata`` (a JSON object). The CSV gets the same facts in a sidecar,
+``samples.schema.json`` (:func:`schema_doc`): every column's type, unit and meaning, and the metadata.
+
+The bracket's exposures (``exposures_s``) are a list column here and a JSON array in the CSV (``[0.01, 0.04]``);
+tables written before that hold ``0.01;0.04``, which :func:`exposure_list` reads too.
 """
 
 from __future__ import annotations
@@ -26,6 +33,10 @@ from model.version import gonio_version
 
 TABLE_FORMAT = "gonio-samples/1"
 PARQUET_NAME = "samples.parquet"
+#: Suffix of the CSV's sidecar: samples.csv -> samples.schema.json.
+SCHEMA_SUFFIX = ".schema.json"
+#: File-level key of the run's metadata in the Parquet file.
+METADATA_KEY = "gonio.metadata"
 _ANGLES = {"theta_i_deg": "incidence zenith", "phi_i_deg": "incidence azimuth", "theta_o_deg": "outgoing zenith",
            "phi_o_deg": "outgoing azimuth"}  # fmt: skip
 _PER_CHANNEL = {
@@ -44,7 +55,9 @@ _FIXED = {
     "dark": ("bool", "", "true when the ROI showed no light even after metering: the value is noise about zero"),
     "n_frames": ("int", "", "frames in the exposure bracket (top-up included)"),
     "total_exposure_s": ("float", "s", "sum of the bracket's exposure times"),
-    "exposures_s": ("list", "s", "exposure time of each frame of the bracket, in capture order"),
+    "exposures_s": ("list", "s", "exposure time of each frame of the bracket, in capture order (CSV: a JSON array)"),
+    "utc": ("str", "", "UTC time (ISO 8601) the point's journal record was made, right after its reading; "
+            "empty in older journals"),
     "round": ("int", "", "round of the adaptive sweep that measured the point (0 is the space-filling start)"),
     "direction_cov": ("str", "", "JSON: the 4 x 4 covariance of the local unit directions' tangent components wi_x, "
                       "wi_y, wo_x, wo_y (dimensionless, rad^2 for small errors); empty in older journals"),
@@ -97,13 +110,25 @@ def _value(kind: str, value: Any, where: str) -> Any:
                 return value.lower() == "true"
             return bool(value)
         if kind == "list":
-            parts = value.split(";") if isinstance(value, str) else list(value)
-            return [float(v) for v in parts]
+            return exposure_list(value)
         if kind == "map":
             return [(str(k), None if v is None else float(v)) for k, v in dict(value).items()]
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{where}: {value!r} is not a {kind} ({exc})") from None
     return str(value)
+
+
+def exposure_list(value: Any) -> list[float]:
+    """A list cell as floats: a list, a JSON array (``[0.01, 0.04]``) or an older table's ``0.01;0.04``."""
+    if value is None or value == "":
+        return []
+    if isinstance(value, str):
+        text = value.strip()
+        parts = json.loads(text) if text.startswith("[") else text.split(";")
+        if not isinstance(parts, list):
+            raise ValueError(f"{value!r} is not a list")
+        return [float(v) for v in parts]
+    return [float(v) for v in value]
 
 
 def parquet_table(
@@ -157,15 +182,49 @@ class ParquetWarning(UserWarning):
     """The Parquet copy of a table could not be written; the CSV, which is the record, stands."""
 
 
-def write_beside(csv_path: str | Path, rows: Sequence[Mapping[str, Any]]) -> Path | None:
-    """Write the Parquet copy of the table at ``csv_path`` beside it (same stem); None and a warning if it fails.
+def schema_doc(
+    rows: Sequence[Mapping[str, Any]], metadata: Mapping[str, Any] | None = None, *, table: str = "samples.csv"
+) -> dict[str, Any]:
+    """The CSV's sidecar: the table's format, every column's type, unit and meaning, and the run's metadata."""
+    cols = list(dict.fromkeys(k for row in rows for k in row))
+    columns = {}
+    for name in cols:
+        info = column(name)
+        columns[name] = {"type": info.kind, "unit": info.unit, "description": info.description}
+        if info.kind == "list":
+            columns[name]["csv"] = "a JSON array of numbers in one cell"
+    return {"table": table, "format": TABLE_FORMAT, "gonio_version": gonio_version(), "columns": columns,
+            "metadata": dict(metadata or {})}  # fmt: skip
+
+
+def write_schema(csv_path: str | Path, rows: Sequence[Mapping[str, Any]], metadata: Mapping[str, Any] | None = None
+                 ) -> Path:  # fmt: skip
+    """Write ``<stem>.schema.json`` beside the CSV at ``csv_path`` atomically; returns its path."""
+    target = Path(csv_path).with_name(Path(csv_path).stem + SCHEMA_SUFFIX)
+    text = json.dumps(schema_doc(rows, metadata, table=Path(csv_path).name), indent=2, allow_nan=False) + "\n"
+    with atomic_path(target) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+        tmp.chmod(0o644)
+    return target
+
+
+def write_beside(
+    csv_path: str | Path, rows: Sequence[Mapping[str, Any]], metadata: Mapping[str, Any] | None = None
+) -> Path | None:
+    """Write the CSV's sidecar schema and its Parquet copy (same stem); None and a warning if Parquet fails.
 
     The CSV is the run's record and is written first: a Parquet copy that cannot be written (a full disk, a
-    value no Parquet type holds) must not keep a measured run from being marked finished.
+    value no Parquet type holds) must not keep a measured run from being marked finished. ``metadata`` is the
+    run's ``[metadata]``: the sidecar and the Parquet file's ``gonio.metadata`` key carry it.
     """
     target = Path(csv_path).with_suffix(".parquet")
     try:
-        return write_parquet(target, rows)
+        write_schema(csv_path, rows, metadata)
+    except (OSError, ValueError, TypeError) as exc:
+        warnings.warn(f"{csv_path}: its schema sidecar was not written: {exc}", ParquetWarning, stacklevel=2)
+    try:
+        meta = {METADATA_KEY: json.dumps(dict(metadata or {}), allow_nan=False)}
+        return write_parquet(target, rows, metadata=meta)
     except (OSError, ValueError, TypeError, ImportError) as exc:
         warnings.warn(f"{target}: the Parquet copy of {Path(csv_path).name} was not written: {exc}", ParquetWarning,
                       stacklevel=2)  # fmt: skip

@@ -196,8 +196,11 @@ def test_a_stopped_run_is_analysed_as_far_as_it_got_with_a_warning(gold_run: Pat
     alpha = next(c for c in doc["candidates"] if c["name"] == "ggx_conductor")["params"]["alpha"]
     assert abs(alpha / GOLD["alpha"] - 1) < 0.05
     # The chosen model is exported and linked: a Mitsuba fragment and a glTF material (gold is a metal).
-    for name in ("material.json", "mitsuba_bsdf.xml", "mitsuba_bsdf.json", "gltf_material.json"):
+    for name in ("material.json", "mitsuba_bsdf.xml", "mitsuba_bsdf.json", "mitsuba_scene.xml", "gltf_material.json",
+                 "material.gltf", "README.md"):
         assert (out / "export" / name).stat().st_size > 0 and f'href="export/{name}"' in html
+    # The page says which Mitsuba the export is for and how exact it is (a GGX conductor maps exactly).
+    assert "stock Mitsuba 3, no gonio needed: exact native mapping, relative RMS BRDF difference 0.00%" in html
     gltf = json.loads((out / "export" / "gltf_material.json").read_text())
     assert gltf["pbrMetallicRoughness"]["metallicFactor"] > 0.9
     assert not (out / "export" / "material.binary").exists()  # 35 MB: only with --merl

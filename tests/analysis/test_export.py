@@ -18,7 +18,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from analysis.export import FILES, export_material, mitsuba_dict, mitsuba_xml
+from analysis.export import FILES, export_material, export_notes, mitsuba_dict, mitsuba_xml
 from model import CookTorrance, Lambert, MerlTable, MetalRoughness, Phong, read_merl
 from model.base import BRDF
 from model.fit.metal_roughness import to_metal_roughness
@@ -110,15 +110,13 @@ def test_json_dict_loads_and_evaluates_to_the_model(case: str) -> None:
 
 
 @pytest.mark.parametrize("case", sorted(PLUGIN))
-def test_non_native_models_export_exactly_through_the_gonio_plugin(case: str) -> None:
+def test_non_native_models_export_exactly_through_the_gonio_plugin_on_request(case: str) -> None:
     m = PLUGIN[case]
-    with pytest.raises(ValueError, match="no native Mitsuba plugin"):
-        mitsuba_dict(m)
-    d = mitsuba_dict(m, allow_plugin=True)
+    d = mitsuba_dict(m, plugin=True)
     assert d["type"] == mitsuba_bsdf.PLUGIN and set(d) == {"type", mitsuba_bsdf.MODEL_JSON_KEY}
     assert from_json_dict(json.loads(d[mitsuba_bsdf.MODEL_JSON_KEY])) == m  # plain data, no registry key
-    fragment = mitsuba_xml(m, "plugin_bsdf", version="3.0.0")
-    assert "stock Mitsuba cannot render it" in fragment and "gltf_material.json" in fragment
+    fragment = mitsuba_xml(m, "plugin_bsdf", version="3.0.0", plugin=True)
+    assert "stock Mitsuba cannot render it" in fragment and "mitsuba_bsdf.xml" in fragment
     assert_matches(mi.load_string(fragment), m, PLUGIN_REL_TOL)
     assert_matches(mi.load_dict(d), m, PLUGIN_REL_TOL)
 
@@ -153,7 +151,7 @@ def load_through_include(xml_file: Path, name: str) -> Any:
 def test_export_material_writes_every_file_for_a_native_model(tmp_path: Path) -> None:
     m = NATIVE["lambert_ggx_dielectric"][0]
     paths = export_material(m, tmp_path / "out", name="plastic")
-    assert set(paths) == {"material", "mitsuba_xml", "mitsuba_json", "gltf"}
+    assert set(paths) == {"material", "mitsuba_xml", "mitsuba_json", "mitsuba_scene", "gltf", "gltf_asset", "readme"}
     assert {p.name for p in paths.values()} == {FILES[k] for k in paths}
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == sorted(FILES[k] for k in paths)  # no temp files
     doc = json.loads(paths["material"].read_text())
@@ -172,18 +170,30 @@ def test_export_material_writes_every_file_for_a_native_model(tmp_path: Path) ->
     assert gltf["extras"]["projection_error"]["rms_rel"] == projection.rms_rel > 0
 
 
-def test_export_material_for_a_plugin_model_skips_the_stock_mitsuba_dict(tmp_path: Path) -> None:
+def test_export_material_for_a_non_native_model_writes_the_stock_projection(tmp_path: Path) -> None:
     m = PLUGIN["phong"]
     paths = export_material(m, tmp_path, name="phong")
-    assert set(paths) == {"material", "mitsuba_xml", "gltf"}
-    assert not (tmp_path / FILES["mitsuba_json"]).exists()
+    assert set(paths) == {"material", "mitsuba_xml", "mitsuba_json", "mitsuba_scene", "gltf", "gltf_asset", "readme"}
     doc = json.loads(paths["material"].read_text())
     assert doc["facts"]["mitsuba"] == {
         "plugin": "gonio_model",
         "native": False,
         "note": "Python plugin: Mitsuba has no Phong plugin",
     }
-    assert_matches(load_through_include(paths["mitsuba_xml"], "phong"), m, PLUGIN_REL_TOL)
+    stock = doc["facts"]["mitsuba_stock"]
+    assert stock["plugin"] == "blendbsdf" and not stock["exact"]
+    native = from_json_dict(stock["native_model"])
+    # The stock BSDF is exactly the Mitsuba form of the fitted native model; nothing names gonio's plugin.
+    assert json.loads(paths["mitsuba_json"].read_text()) == mitsuba_dict(native)
+    assert "gonio_model" not in paths["mitsuba_xml"].read_text().split("-->")[-1]
+    assert_matches(load_through_include(paths["mitsuba_xml"], "phong"), native, NATIVE_REL_TOL)
+    assert f"{stock['error']['rms_rel']:.3%}" in paths["readme"].read_text()
+    # What the report page says beside the file: for stock Mitsuba, a projection, and how far it is.
+    assert export_notes(paths)["mitsuba_xml"] == (
+        "stock Mitsuba 3, no gonio needed: nearest stock BSDF (blendbsdf), a projection, relative RMS BRDF "
+        f"difference {stock['error']['rms_rel']:.2%}, evaluated by Mitsuba")
+    with_plugin = export_material(m, tmp_path / "with_plugin", name="phong", gonio_plugin=True)
+    assert_matches(load_through_include(with_plugin["mitsuba_plugin_xml"], "phong"), m, PLUGIN_REL_TOL)
 
 
 def test_merl_export_reads_back_bin_by_bin(tmp_path: Path) -> None:
@@ -209,3 +219,46 @@ def test_refusals_leave_nothing_behind(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="name = ''"):
         export_material(Lambert(), tmp_path / "unnamed", name="")
     assert not (tmp_path / "merl").exists() and not (tmp_path / "unnamed").exists()
+
+
+def test_gltf_asset_is_a_whole_valid_gltf_2_document(tmp_path: Path) -> None:
+    import base64
+    import struct
+
+    m = NATIVE["ggx_conductor"][0]
+    paths = export_material(m, tmp_path, name="gold")
+    doc = json.loads(paths["gltf_asset"].read_text())
+    assert doc["asset"]["version"] == "2.0" and doc["scene"] == 0
+    # Every index points at something that exists (glTF 2.0 section 3.7 onwards).
+    scene = doc["scenes"][doc["scene"]]
+    node = doc["nodes"][scene["nodes"][0]]
+    prim = doc["meshes"][node["mesh"]]["primitives"][0]
+    assert doc["materials"][prim["material"]] == json.loads(paths["gltf"].read_text())
+    (buffer,) = doc["buffers"]
+    prefix = "data:application/octet-stream;base64,"
+    assert buffer["uri"].startswith(prefix)
+    data = base64.b64decode(buffer["uri"][len(prefix):])
+    assert len(data) == buffer["byteLength"]
+    sizes = {5126: 4, 5123: 2}
+    widths = {"SCALAR": 1, "VEC2": 2, "VEC3": 3}
+    decoded = {}
+    for i, acc in enumerate(doc["accessors"]):
+        view = doc["bufferViews"][acc["bufferView"]]
+        assert view["buffer"] == 0 and view["byteOffset"] % sizes[acc["componentType"]] == 0
+        assert view["byteOffset"] + view["byteLength"] <= len(data)
+        n = acc["count"] * widths[acc["type"]]
+        assert n * sizes[acc["componentType"]] == view["byteLength"]
+        fmt = "<" + ("f" if acc["componentType"] == 5126 else "H") * n
+        decoded[i] = np.array(struct.unpack_from(fmt, data, view["byteOffset"])).reshape(acc["count"], -1)
+    pos = decoded[prim["attributes"]["POSITION"]]
+    np.testing.assert_allclose(pos.min(axis=0), doc["accessors"][prim["attributes"]["POSITION"]]["min"], atol=1e-7)
+    np.testing.assert_allclose(pos.max(axis=0), doc["accessors"][prim["attributes"]["POSITION"]]["max"], atol=1e-7)
+    assert np.ptp(pos[:, 0]) == pytest.approx(0.05) and np.all(pos[:, 1] == 0)  # a 5 cm patch in the x-z plane
+    idx = decoded[prim["indices"]].ravel().astype(int)
+    assert sorted(set(idx)) == [0, 1, 2, 3] and prim.get("mode", 4) == 4
+    normals = decoded[prim["attributes"]["NORMAL"]]
+    np.testing.assert_allclose(normals, [[0.0, 1.0, 0.0]] * 4)
+    # Triangles wind counter-clockwise seen along their normal (front faces, glTF 2.0 section 3.7.2.1).
+    for t in idx.reshape(-1, 3):
+        a, b, c = pos[t]
+        assert np.dot(np.cross(b - a, c - a), normals[t[0]]) > 0

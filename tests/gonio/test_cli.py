@@ -92,3 +92,14 @@ def test_adaptive_measures_its_budget_with_the_reference_snr_asked_for(tmp_path,
     assert len(rel) >= 4 and np.median(rel) <= 1.1 / 1200
     assert cli.main([*args[:4], str(tmp_path / "bad"), "--reference-snr", "0"]) == 2
     assert "reference_snr (0.0) must be > 0" in capsys.readouterr().err
+
+
+def test_adaptive_metadata_options_and_their_mistakes(capsys: pytest.CaptureFixture[str]) -> None:
+    from gonio.cli_adaptive import _metadata
+
+    assert _metadata(["sample=gold foil #7", "notes=a=b", "operator="]) == {
+        "sample": "gold foil #7", "notes": "a=b", "operator": ""}
+    assert cli.main(["adaptive", "--out", "/nonexistent/x", "--metadata", "sample"]) == 2
+    assert "--metadata 'sample': expected KEY=VALUE" in capsys.readouterr().err
+    assert cli.main(["adaptive", "--metadata", "sample=x"]) == 2  # neither --out nor --resume
+    assert "--out DIR is required (or --resume DIR" in capsys.readouterr().err

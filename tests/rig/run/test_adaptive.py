@@ -4,16 +4,20 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from gonio.cli import main
 from model.fit.design import brdf_error, error_pairs
 from model.fit.spec import LAMBERT, lambert_ggx
 from rig.instrument.kinematics import solve_degrees
-from rig.run.adaptive import AdaptiveSettings, Round, candidate_points, run_adaptive, space_filling
+from rig.run.adaptive import AdaptiveSettings, Round, candidate_points, resume_adaptive, run_adaptive, space_filling
+from rig.run.adaptive_state import AdaptiveStateError
 from rig.run.config import material_from
 from rig.run.sweeps import directions_to_half_diff
 from tests.run_helpers import reference_relative_errors, sim_rig
@@ -107,3 +111,70 @@ def test_an_adaptive_sweep_runs_rounds_refits_and_lowers_its_predicted_error(tmp
     assert len(firsts) == 3
     with pytest.raises(ValueError, match="not empty"):
         run_adaptive(rig, tmp_path / "ad", lambert_ggx("dielectric"), settings)
+
+
+SMALL = AdaptiveSettings(budget=14, initial=8, batch=6, candidates=600, target_snr=50.0)
+
+
+def small_rig() -> Any:
+    return sim_rig(camera={"resolution": [64, 64], "roi": [30, 30, 34, 34]},
+                   metadata={"sample": "white tile", "operator": "T. Est"})  # fmt: skip
+
+
+def without_utc(table: Path) -> list[dict[str, str]]:
+    with open(table, newline="") as fh:
+        return [{k: v for k, v in row.items() if k != "utc"} for row in csv.DictReader(fh)]
+
+
+def kill_in_round_one(whole: Path, copy: Path, keep_lines: int) -> None:
+    """``copy``: ``whole`` as a SIGKILL in round 1 would leave it (round 1's journal cut, no tables, no status)."""
+    shutil.copytree(whole, copy)
+    for name in ("samples.csv", "samples.parquet", "samples.schema.json"):
+        (copy / name).unlink()
+        (copy / "round-01" / name).unlink()
+    (copy / "round-01" / "status.json").unlink()
+    journal = copy / "round-01" / "journal.jsonl"
+    journal.write_text("".join(journal.read_text().splitlines(keepends=True)[:keep_lines]))
+    state = json.loads((copy / "adaptive.json").read_text())
+    (copy / "adaptive.json").write_text(json.dumps({**state, "state": "running", "rounds": state["rounds"][:1]}))
+
+
+@pytest.fixture(scope="module")
+def whole_sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("adaptive") / "whole"
+    run_adaptive(small_rig(), out, LAMBERT, SMALL, log=lambda _: None, metadata={"notes": "resume test"})
+    return out
+
+
+def test_an_interrupted_adaptive_sweep_resumes_to_the_uninterrupted_table(
+    whole_sweep: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    state = json.loads((whole_sweep / "adaptive.json").read_text())
+    assert state["state"] == "finished" and state["model"] == "lambert" and state["settings"]["budget"] == 14
+    assert state["metadata"] == {"sample": "white tile", "operator": "T. Est", "notes": "resume test"}
+    killed = tmp_path / "killed"
+    kill_in_round_one(whole_sweep, killed, keep_lines=4)
+    points_before = sum('"kind":"point"' in line for line in open(killed / "round-01" / "journal.jsonl"))
+    assert 0 < points_before < 6
+    # gonio resume on an adaptive directory resumes the sweep (round 1 from its journal, then the merge).
+    assert main(["resume", str(killed), "--quiet"]) == 0, capsys.readouterr().err
+    assert without_utc(killed / "samples.csv") == without_utc(whole_sweep / "samples.csv")
+    assert json.loads((killed / "adaptive.json").read_text())["state"] == "finished"
+    journal = [json.loads(line) for line in open(killed / "round-01" / "journal.jsonl")]
+    assert sum(r.get("kind") == "point" for r in journal) == 6  # only the missing points were measured
+    assert json.loads((killed / "samples.schema.json").read_text())["metadata"] == state["metadata"]
+    # Once finished there is nothing to resume; the message says so.
+    assert main(["adaptive", "--resume", str(killed)]) == 2
+    assert "finished" in capsys.readouterr().err
+
+
+def test_a_resume_with_changed_settings_is_refused(whole_sweep: Path, tmp_path: Path) -> None:
+    killed = tmp_path / "changed"
+    kill_in_round_one(whole_sweep, killed, keep_lines=4)
+    state = json.loads((killed / "adaptive.json").read_text())
+    state["settings"]["seed"] = 5  # another candidate pool: round 0 on disk is not what this sweep would measure
+    (killed / "adaptive.json").write_text(json.dumps(state))
+    with pytest.raises(AdaptiveStateError, match="round-00: its run measured other points"):
+        resume_adaptive(killed, lambda name: LAMBERT)
+    with pytest.raises(AdaptiveStateError, match="not an adaptive sweep's directory"):
+        resume_adaptive(tmp_path, lambda name: LAMBERT)

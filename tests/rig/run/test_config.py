@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from rig.run.config import ConfigError, load_rig, load_sweep, material_from, parse, rig_config, sweep_config
-from rig.run.config_schema import RigFile, SweepFile
+from rig.run.config_schema import RigFile, SweepFile, run_metadata
 from rig.run.session import make_plan
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
@@ -162,7 +162,7 @@ rig_keys = st.sampled_from([
 sweep_keys = st.sampled_from([
     ["sweep", "kind"], ["sweep", "theta_i_deg"], ["sweep", "theta_o_deg"], ["sweep", "points"],
     ["sweep", "isotropic"], ["capture", "target_snr"], ["capture", "max_frames"], ["capture", "exposures_s"],
-    ["name"], ["capture", "bogus"],
+    ["name"], ["capture", "bogus"], ["metadata", "sample"], ["metadata", "batch"],
 ])  # fmt: skip
 
 
@@ -184,3 +184,26 @@ def test_fuzzed_sweep_files_load_or_say_why(path: list[str], value: Any) -> None
         sweep_config(parse(doc, SweepFile, "fuzz.toml"), "fuzz.toml")
     except ConfigError as exc:
         assert str(exc).startswith("fuzz.toml") and len(str(exc)) > len("fuzz.toml: ")
+
+
+def test_metadata_tables_are_kept_merged_and_checked(tmp_path: Path) -> None:
+    rig, sweep = load_rig(EXAMPLES / "rig_simulated.toml"), load_sweep(EXAMPLES / "sweep_in_plane.toml")
+    assert rig.file.metadata.as_dict() == {"lab": "simulation"}
+    meta = sweep.file.metadata
+    assert meta.sample == "rough gold (simulated)" and meta.operator == "gonio examples" and meta.notes
+    assert run_metadata(rig.file, sweep.file) == {"lab": "simulation", **meta.as_dict()}
+    doc = {"sweep": {"kind": "list", "points": [[0.0, 0.0, 30.0, 180.0]]},
+           "metadata": {"sample": "tile", "batch": 7, "tags": ["a", "b"], "when": tomllib.loads("d = 2026-12-01")["d"]}}
+    got = parse(doc, SweepFile, "m.toml").metadata.as_dict()
+    assert got == {"sample": "tile", "batch": 7, "tags": ["a", "b"], "when": "2026-12-01"}
+    bad = tmp_path / "bad.toml"
+    for text, message in [
+        ('[metadata]\nsample = 3', "bad.toml: metadata.sample = 3: expected a valid string"),
+        ("[metadata]\nsetup = { lamp = 'halogen' }", "bad.toml: [metadata] setup = {'lamp': 'halogen'}: expected a "
+                                                     "string, number, boolean, date or a list of those"),
+        ("[metadata]\nlevel = nan", "bad.toml: [metadata] level = nan: expected a finite number"),
+    ]:
+        bad.write_text(text + '\n[sweep]\nkind = "list"\npoints = [[0.0, 0.0, 30.0, 180.0]]\n')
+        with pytest.raises(ConfigError) as err:
+            load_sweep(bad)
+        assert str(err.value).startswith(f"{tmp_path}/" + message), str(err.value)
