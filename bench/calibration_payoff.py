@@ -94,7 +94,7 @@ def main() -> None:
     p.add_argument("--offset", type=float, default=1.0, help="sample offset per axis (mm)")
     p.add_argument("--points", type=int, default=150)
     p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--captures", type=int, default=24)
+    p.add_argument("--captures", type=int, default=30)
     p.add_argument("--materials", default="glossy,plastic,metal", help="comma-separated: glossy, plastic, metal")
     p.add_argument("--oracle", action="store_true",
                    help="also measure with the true geometry as the calibration: the floor calibration could reach")

@@ -137,7 +137,7 @@ def calibrate_geometry(
     rig: RigConfig,
     out: str | Path,
     *,
-    captures: int = 24,
+    captures: int = 30,
     alpha: float = 0.01,
     board: ChArUcoBoard | None = None,
     move_timeout_s: float | None = None,
