@@ -19,6 +19,14 @@ conductor's two divisions into one gained under 4 %: not worth a second formula 
 Each configuration (distribution, masking, Fresnel kind, channel count) is its own compiled loop: the
 choices are closure constants, so their branches fold away and LLVM vectorises the straight-line body.
 The first call of a configuration and dtype compiles it (1-2 s); ``cache=True`` keeps it on disk.
+
+What is ISA-specific: numba compiles for the host CPU (the disk cache is keyed by it), so the vector
+width and LLVM's inlining and vectorising decisions are the target's. On AVX2 (checked on a Zen 3 EPYC
+by reading the assembly) the GGX conductor loops use 4-wide float64 and 8-wide float32 vsqrt/vdiv;
+the dielectric and Schlick loops stayed scalar there (cause not found), and Beckmann stays scalar on
+any target (libm exp and erfc; numba would vectorise them only through Intel's SVML). AVX-512 doubles
+the lanes where LLVM chooses 512-bit vectors; that was not measured here. sqrt and division are
+correctly rounded in every width, so the values do not depend on the ISA.
 """
 
 from __future__ import annotations
