@@ -2,9 +2,9 @@
 
 By default the OpenMP runtime behind numba's ``omp`` threading layer (libgomp) spins its workers after
 each parallel call, and OpenBLAS runs one spinning thread per core. On a shared or loaded machine the
-spinning threads take the cores from whatever runs next: measured on a 2-vCPU EPYC under load, a
-10k-pair BRDF evaluation took 16-47 ms by default and about 1 ms with a passive wait policy, and a
-30000 x 6 SVD (the fits' size) 126 ms on two OpenBLAS threads and 34 ms on one.
+spinning threads take the cores from whatever runs next. Measured on a 2-vCPU EPYC at load average 8-10
+(shared), with the kernel and a 30000 x 6 SVD (the fits' size) alternating: the 10k-pair GGX evaluation
+took a median 7-27 ms with the defaults and 1.5-8 ms under this policy, the SVD 42-88 ms and 7-16 ms.
 
 :func:`apply_thread_policy` is the one place this is set. ``model/__init__.py`` runs it before
 anything else, and so does every entry point before it imports numpy (``gonio/__init__.py``,
