@@ -107,3 +107,12 @@ def write_section(path: Path, name: str, body: str) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(text)
     tmp.replace(path)
+
+
+def load_average() -> str:
+    """The machine's 1, 5 and 15 minute load averages, as `uptime` prints them (shared machines vary)."""
+    try:
+        one, five, fifteen = os.getloadavg()
+    except OSError:
+        return "load average unavailable"
+    return f"load average {one:.2f}, {five:.2f}, {fifteen:.2f}"
