@@ -18,7 +18,8 @@ conductor's two divisions into one gained under 4 %: not worth a second formula 
 
 Each configuration (distribution, masking, Fresnel kind, channel count) is its own compiled loop: the
 choices are closure constants, so their branches fold away and LLVM vectorises the straight-line body.
-The first call of a configuration and dtype compiles it (1-2 s); ``cache=True`` keeps it on disk.
+The first call of a configuration and dtype compiles it (about 5 CPU s on the Zen 3 EPYC); ``cache=True``
+keeps it on disk.
 
 What is ISA-specific: numba compiles for the host CPU (the disk cache is keyed by it), so the vector
 width and LLVM's inlining and vectorising decisions are the target's. On AVX2 (checked on a Zen 3 EPYC
@@ -147,10 +148,10 @@ def _fresnel(cd: float, cd2: float, s2: float, p: float, q: float, kc: Consts, f
 # Inlined into the parfor body as numba IR (so are _lambda and _fresnel), with unsigned indices and no
 # load inside a conditional expression: a call that LLVM does not inline, the wraparound test of a
 # signed index, or a conditional load (numba lowers `a[i] if c else 0` to a branch), each kept the whole
-# loop scalar. Whether LLVM inlines a call is its target's cost model: on Zen 3 (AVX2) it inlined none of
-# the three helpers and every sqrt and division stayed scalar (vsqrtsd, vdivsd). Inlining _lambda and
-# _fresnel in numba is enough for LLVM to take _specular too; inlining all three vectorised the same but
-# tripled the compile time of a configuration (3.4 -> 9.9 CPU s; these two: 4.9 s).
+# loop scalar. Whether LLVM inlines a call is its target's cost model: on Zen 3 (AVX2), with the helpers
+# left to LLVM, every sqrt and division stayed scalar (vsqrtsd, vdivsd). Inlining _lambda and _fresnel in
+# numba was enough for the loop to vectorise; inlining _specular too vectorised the same but tripled the
+# compile time of a configuration (3.4 -> 9.9 CPU s; these two: 4.9 s).
 @numba.njit(inline="always", **_JIT)
 def _pair(
     j: int, o: int, wi: Array, wo: Array, out: Array, p: Array, q: Array, rho: Array, kc: Consts, mp: Consts,
