@@ -24,7 +24,10 @@ keeps it on disk.
 What is ISA-specific: numba compiles for the host CPU (the disk cache is keyed by it), so the vector
 width and LLVM's inlining and vectorising decisions are the target's. On AVX2 (checked on a Zen 3 EPYC
 by reading the assembly) the GGX conductor loops use 4-wide float64 and 8-wide float32 vsqrt/vdiv;
-the dielectric and Schlick loops stayed scalar there (cause not found), and Beckmann stays scalar on
+the dielectric and Schlick loops stayed scalar there (LLVM's remark: "the cost-model indicates that
+vectorization is not beneficial", likely the stride-3 loads against a cheaper body; splitting blocks
+into one array per component, tried for the conductor, vectorised it at the same speed as the
+interleaved loop, but was not tried for these), and Beckmann stays scalar on
 any target (libm exp and erfc; numba would vectorise them only through Intel's SVML). AVX-512 doubles
 the lanes where LLVM chooses 512-bit vectors; that was not measured here. sqrt and division are
 correctly rounded in every width, so the values do not depend on the ISA.
