@@ -4,3 +4,5 @@ Frames and the camera interface (frame.py), camera backends (cameras/), image fi
 planning (exposure/), the HDR merge (hdr/), the sensor's noise (noise.py), ROI reduction (roi.py) and
 calibration against a reference target (calibration.py). Imports model only.
 """
+
+import model.threads  # noqa: F401 (the thread pools' policy, before the HDR merge's numba pool starts)

@@ -7,7 +7,10 @@ float32) and ``scalar_rgb`` (one Python call per pair, the only way to drive it 
 The Mitsuba timings include the numpy -> drjit -> numpy conversions; one more row times Mitsuba's
 evaluation alone (drjit arrays in and out) to show what those conversions cost. The kernel and
 Mitsuba llvm are timed in alternating blocks (see :func:`block_medians`), so load from the rest of
-the machine hits both. numba uses its default thread count, one per core.
+the machine hits both, once on every core (numba's and drjit's default thread counts) and once on one
+thread each. The physical anchor of each is a streaming copy of the same bytes: ``np.copyto`` of an
+array the size of the float64 inputs plus outputs (in one thread per core, or one), and each path's
+numpy bytes (inputs + outputs) per second as a fraction of that copy's bandwidth (read + write).
 
 Run: ``.venv/bin/python -m bench.model_throughput [--pairs N] [--repeats R]``.
 """
@@ -16,9 +19,11 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import itertools
 import statistics
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from typing import Any
 
@@ -28,7 +33,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from bench._common import format_table, machine_description, median_time, uniform_hemisphere
+from bench._common import format_table, load_average, machine_description, median_time, uniform_hemisphere
 from model import kernels
 from model.base import Model
 from model.cook_torrance import CookTorrance
@@ -50,7 +55,11 @@ ANCHOR = f"Mitsuba {LLVM} (anchor)"
 KERNEL32 = "ours: kernel float32"
 EVAL_ONLY = f"Mitsuba {LLVM}, drjit in and out"
 SCALAR_LOOP = f"Mitsuba {SCALAR}, Python loop"
-ORDER = (NUMPY, KERNEL, KERNEL32, ANCHOR, EVAL_ONLY, SCALAR_LOOP)
+COPY = "memory: np.copyto of inputs + outputs (anchor)"
+ORDER = (NUMPY, KERNEL, KERNEL32, ANCHOR, EVAL_ONLY, COPY, SCALAR_LOOP)
+#: Bytes per pair in numpy, inputs + outputs: float64 (N, 3) x 2 in and (N, 3) out; float32 half; Mitsuba
+#: float64 in and float32 out. The copy anchor moves the float64 figure twice (read and write).
+BYTES = {KERNEL: 72, KERNEL32: 36, ANCHOR: 60, EVAL_ONLY: 36, COPY: 72}
 
 
 def _bsdf() -> Any:
@@ -106,8 +115,32 @@ def block_medians(fns: dict[str, Callable[[], object]], rounds: int, per_block: 
     return {name: statistics.median(ts) for name, ts in times.items()}
 
 
-def measure(n: int, repeats: int) -> tuple[dict[str, tuple[int, float]], dict[str, str]]:
-    """(pairs, median seconds) per path, and why each unavailable Mitsuba variant does not load."""
+class StreamingCopy:
+    """np.copyto of one float64 array the size of a path's inputs + outputs, split over ``threads`` threads."""
+
+    def __init__(self, n_pairs: int, threads: int) -> None:
+        self.src = np.ones(n_pairs * BYTES[COPY] // 8)
+        self.dst = np.empty_like(self.src)
+        self.threads = threads
+        self.pool = ThreadPoolExecutor(threads) if threads > 1 else None
+
+    def __call__(self) -> None:
+        """Copy once (numpy releases the GIL in copyto, so the threads' slices run in parallel)."""
+        if self.pool is None:
+            np.copyto(self.dst, self.src)
+            return
+        bounds = np.linspace(0, self.src.size, self.threads + 1).astype(int)
+        parts = [(self.dst[a:b], self.src[a:b]) for a, b in itertools.pairwise(bounds)]
+        list(self.pool.map(lambda ds: np.copyto(*ds), parts))
+
+    def close(self) -> None:
+        """Stop the copy threads."""
+        if self.pool is not None:
+            self.pool.shutdown()
+
+
+def measure(n: int, repeats: int) -> tuple[dict[tuple[str, int], tuple[int, float]], dict[str, str]]:
+    """(pairs, median seconds) per (path, threads), and why each unavailable Mitsuba variant does not load."""
     rng = np.random.default_rng(2024)
     # Directions representable in float32, so Mitsuba and our float64 code see the very same pairs.
     wi = uniform_hemisphere(rng, n, np.float32).astype(np.float64)
@@ -123,30 +156,63 @@ def measure(n: int, repeats: int) -> tuple[dict[str, tuple[int, float]], dict[st
     ours, ref = model.eval(wi, wo), Model.eval(model, wi, wo)
     accuracy = [f"kernel float64 vs numpy reference: max relative difference {_max_rel(ours, ref):.2e}, "
                 f"bit-identical {100 * np.mean(ours == ref):.2f} % of values"]
-    if LLVM in unavailable:
-        seconds = block_medians(fast, ROUNDS, per_block)
-    else:
-        with use_variant(LLVM):
-            bsdf = _bsdf()
-            si = dr.zeros(mi.SurfaceInteraction3f)
-            si.wi, wo_dr = mi.Vector3f(wi[:, 0], wi[:, 1], wi[:, 2]), mi.Vector3f(wo[:, 0], wo[:, 1], wo[:, 2])
-            seconds = block_medians({
-                **fast, ANCHOR: partial(mitsuba_llvm_eval, bsdf, wi, wo),
-                EVAL_ONLY: partial(mitsuba_llvm_eval_only, bsdf, si, wo_dr),
-            }, ROUNDS, per_block)
-            f_mitsuba = mitsuba_llvm_eval(bsdf, wi, wo).astype(np.float64)
-        # Mitsuba's eval includes the cosine foreshortening of the outgoing direction.
-        accuracy.append(f"kernel * cos(theta_o) vs Mitsuba {LLVM} (float32): max relative difference "
-                        f"{_max_rel(f_mitsuba, ours * wo[:, 2:3]):.2e}")
-    result = {name: (n, s) for name, s in seconds.items()}
-    result[NUMPY] = (n, median_time(partial(Model.eval, model, wi, wo), max(1, repeats // 3)))
+    cores = numba.get_num_threads()
+    result: dict[tuple[str, int], tuple[int, float]] = {}
+    for threads in dict.fromkeys((cores, 1)):
+        copy = StreamingCopy(n, threads)
+        numba.set_num_threads(threads)
+        fns: dict[str, Callable[[], object]] = {**fast, COPY: copy}
+        if LLVM in unavailable:
+            seconds = block_medians(fns, ROUNDS, per_block)
+        else:
+            with use_variant(LLVM):
+                dr.set_thread_count(threads)
+                bsdf = _bsdf()
+                si = dr.zeros(mi.SurfaceInteraction3f)
+                si.wi, wo_dr = mi.Vector3f(wi[:, 0], wi[:, 1], wi[:, 2]), mi.Vector3f(wo[:, 0], wo[:, 1], wo[:, 2])
+                seconds = block_medians({
+                    **fns, ANCHOR: partial(mitsuba_llvm_eval, bsdf, wi, wo),
+                    EVAL_ONLY: partial(mitsuba_llvm_eval_only, bsdf, si, wo_dr),
+                }, ROUNDS, per_block)
+                if threads == cores:
+                    f_mitsuba = mitsuba_llvm_eval(bsdf, wi, wo).astype(np.float64)
+                    # Mitsuba's eval includes the cosine foreshortening of the outgoing direction.
+                    accuracy.append(f"kernel * cos(theta_o) vs Mitsuba {LLVM} (float32): max relative "
+                                    f"difference {_max_rel(f_mitsuba, ours * wo[:, 2:3]):.2e}")
+                dr.set_thread_count(cores)
+        copy.close()
+        result.update({(name, threads): (n, s) for name, s in seconds.items()})
+    numba.set_num_threads(cores)
+    result[NUMPY, 1] = (n, median_time(partial(Model.eval, model, wi, wo), max(1, repeats // 3)))
     if SCALAR not in unavailable:
         m = min(n, N_SCALAR)
         with use_variant(SCALAR):
-            result[SCALAR_LOOP] = (
+            result[SCALAR_LOOP, 1] = (
                 m, median_time(partial(mitsuba_scalar_eval, _bsdf(), wi[:m], wo[:m]), 3))
     print("\n".join(accuracy))
     return result, unavailable
+
+
+def table_rows(result: dict[tuple[str, int], tuple[int, float]]) -> list[list[str]]:
+    """One row per (path, threads): time, rate, ratio to Mitsuba llvm and share of the copy's bandwidth."""
+    rows = []
+    for threads in sorted({t for _, t in result}, reverse=True):
+        anchor = result.get((ANCHOR, threads))
+        copy = result.get((COPY, threads))
+        for name in ORDER:
+            if (name, threads) not in result:
+                continue
+            pairs, s = result[name, threads]
+            rate = pairs / s
+            ratio = f"{rate / (anchor[0] / anchor[1]):.3g}" if anchor is not None and name != COPY else "-"
+            if copy is not None and name in BYTES:
+                # The copy moves its bytes twice (read and write); a path moves its numpy bytes once.
+                bandwidth = 2 * BYTES[COPY] * copy[0] / copy[1]
+                share = f"{BYTES[name] * rate / bandwidth:.2f}" if name != COPY else f"{bandwidth / 1e9:.3g} GB/s"
+            else:
+                share = "-"
+            rows.append([name, str(threads), f"{pairs:,}", f"{s:.3g}", f"{rate / 1e6:.3g}", ratio, share])
+    return rows
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -159,16 +225,13 @@ def main(argv: list[str] | None = None) -> None:
     print(f"date: {datetime.date.today().isoformat()}; {args.pairs} random pairs, numpy (N, 3) in and out")
     print(f"machine: {machine_description()}; numba {numba.__version__} with {numba.get_num_threads()} "
           f"threads, Mitsuba {mi.__version__}")
+    print(f"before: {load_average()} (the machine may be shared)")
     result, unavailable = measure(args.pairs, args.repeats)
-    anchor = result[ANCHOR][0] / result[ANCHOR][1] if ANCHOR in result else None
-    rows = []
-    for name in (name for name in ORDER if name in result):
-        pairs, s = result[name]
-        rate = pairs / s
-        ratio = f"{rate / anchor:.3g}" if anchor is not None else "n/a"
-        rows.append([name, f"{pairs:,}", f"{s:.3g}", f"{rate / 1e6:.3g}", ratio])
-    rows += [[f"Mitsuba {name}", "-", "-", "unavailable", "-"] for name in unavailable]
-    print(format_table(["path", "pairs", "median s", "M evals/s", "vs Mitsuba llvm"], rows))
+    print(f"after: {load_average()}")
+    rows = table_rows(result)
+    rows += [[f"Mitsuba {name}", "-", "-", "-", "unavailable", "-", "-"] for name in unavailable]
+    print(format_table(
+        ["path", "threads", "pairs", "median s", "M evals/s", "vs Mitsuba llvm", "of copy bandwidth"], rows))
     for name, reason in unavailable.items():
         print(f"Mitsuba {name} unavailable: {reason}")
     print(f"median of {ROUNDS * max(1, args.repeats // ROUNDS)} calls for the kernel and Mitsuba llvm, "

@@ -27,7 +27,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import numpy.typing as npt
 
-from bench._common import DEFAULT_OUT, best_time, format_table, machine_description, uniform_hemisphere
+from bench._common import DEFAULT_OUT, best_time, format_table, load_average, machine_description, uniform_hemisphere
 from model import fresnel, microfacet
 from model.base import Model
 from model.cook_torrance import CookTorrance
@@ -367,7 +367,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help="directory for the figure")
     args = ap.parse_args(argv)
     print(f"# model_tradeoffs, {datetime.date.today().isoformat()}")
-    print(f"Machine: {machine_description()}")
+    print(f"Machine: {machine_description()}; before: {load_average()} (the machine may be shared)")
     rng = np.random.default_rng(0)
     fres = fresnel_dial(rng)
     mask = masking_dial(rng)
@@ -375,7 +375,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     alb = albedo_dial()
     path = args.out / "model_tradeoffs.png"
     plot(path, fres, mask, prec, alb)
-    print(f"\nFigure: {path}")
+    print(f"\nFigure: {path}\nafter: {load_average()}")
 
 
 if __name__ == "__main__":

@@ -2,6 +2,8 @@ import os
 
 from hypothesis import settings
 
+import model.threads  # noqa: F401 (the thread pools' policy first, as every entry point: model/threads.py)
+
 # No test may depend on the machine's speed: a shared CI host loaded 5-10x runs an example in many times its
 # usual time, so Hypothesis's per-example deadline is off in every profile (the default one included).
 settings.register_profile("default", deadline=None)
