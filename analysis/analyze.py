@@ -21,6 +21,8 @@ import numpy as np
 
 from acquisition.files.atomic import write_atomic
 from analysis.ladder import fit_ladder
+from analysis.report_params import covariance_json, parameter_status
+from analysis.report_truth import compare_truth
 from analysis.result import Analysis, AnalysisError, Log, Reference
 from analysis.sources import DEFAULT_MERL_SAMPLES, load_merl, load_run, read_merl_source
 from analysis.uncertainty import uncertainty_json
@@ -44,6 +46,7 @@ def load_and_fit(
     compare: str | Path | None = None,
     log: Log | None = None,
     errors: str = "total",
+    progress: bool = False,
 ) -> Analysis:
     """Load a run directory or a MERL file (``samples`` random bins), fit the ladder and choose a model."""
     say = log or (lambda _: None)
@@ -75,7 +78,7 @@ def load_and_fit(
     try:
         angular: dict[str, Any] = {}
         selection, times, caught = fit_ladder(data, ladder, loss=loss, starts=starts, seed=seed, log=say,
-                                              angular=angular)  # fmt: skip
+                                              angular=angular, progress=progress)  # fmt: skip
     except FitError as exc:
         raise AnalysisError(f"{path}: cannot fit: {exc}") from exc
     variance = angular.get(selection.chosen_name) if data.direction_cov.size else None
@@ -119,13 +122,16 @@ def fit_json(a: Analysis) -> dict[str, Any]:
                 "chi2": r.chi2, "dof": r.dof, "reduced_chi2": r.reduced_chi2, "p_value": r.p_value, "aic": r.aic,
                 "bic": r.bic, f"delta_{sel.criterion}": c.criterion(sel.criterion) - best,
                 "noise_reached": r.noise_reached, "warnings": list(r.warnings), "model": model_json(r.model),
+                **covariance_json(r),
+                "parameters": {p.name: p.as_dict() for p in parameter_status(r, a.spec(c.name), a.samples.channels)},
             }  # fmt: skip
         cands.append(doc)
     return _plain({
         "source": a.source.as_dict(), "loss": a.loss, "errors": a.errors, "starts": a.starts,
         "criterion": sel.criterion, "n_samples": a.samples.n, "chosen": sel.chosen_name, "reason": sel.reason,
         "candidates": cands,
-        "model": model_json(sel.chosen.model), "warnings": list(a.warnings), "uncertainty": uncertainty_json(a),
+        "model": model_json(sel.chosen.model), **covariance_json(sel.chosen), "warnings": list(a.warnings),
+        "uncertainty": uncertainty_json(a), "truth": None if (true := compare_truth(a)) is None else true.as_dict(),
     })  # fmt: skip
 
 
@@ -136,9 +142,11 @@ def default_out(source: str | Path) -> Path:
 
 
 def write_report(
-    a: Analysis, out: str | Path, *, y_scale: str = "auto", merl: bool = False, log: Log | None = None
+    a: Analysis, out: str | Path, *, y_scale: str = "auto", merl: bool = False, log: Log | None = None,
+    svg: bool = False, progress: bool = False,
 ) -> Path:
-    """Write figures/, fit.json, export/ (the chosen model for Mitsuba, glTF, optionally MERL) and index.html."""
+    """Write figures/ (PNG; SVG too if ``svg``), fit.json, export/ (the chosen model for Mitsuba, glTF, optionally
+    MERL) and index.html; ``progress``: a bar with ETA over the figures."""
     from analysis.export import export_material
     from analysis.report_html import write_html
     from analysis.report_plots import write_figures
@@ -148,7 +156,7 @@ def write_report(
     if out.exists() and not out.is_dir():
         raise AnalysisError(f"--out {out}: exists and is not a directory")
     say(f"writing figures to {out / 'figures'}")
-    figures = write_figures(a, out / "figures", y_scale=y_scale, log=say)
+    figures = write_figures(a, out / "figures", y_scale=y_scale, log=say, svg=svg, progress=progress)
     text = json.dumps(fit_json(a), indent=2, allow_nan=False) + "\n"
     write_atomic(out / "fit.json", lambda tmp: tmp.write_text(text, encoding="utf-8"))
     say(f"wrote {out / 'fit.json'}")
@@ -171,13 +179,18 @@ def analyze(
     merl: bool = False,
     log: Log | None = None,
     errors: str = "total",
+    svg: bool = False,
+    progress: bool = False,
 ) -> Path:
     """Analyse a run directory or MERL file into ``out`` (default: see default_out); returns index.html's path."""
     a = load_and_fit(source, models=models, loss=loss, starts=starts, samples=samples, seed=seed, compare=compare,
-                     log=log, errors=errors)  # fmt: skip
-    return write_report(a, default_out(source) if out is None else out, y_scale=y_scale, merl=merl, log=log)
+                     log=log, errors=errors, progress=progress)  # fmt: skip
+    return write_report(a, default_out(source) if out is None else out, y_scale=y_scale, merl=merl, log=log,
+                        svg=svg, progress=progress)  # fmt: skip
 
 
 def stderr_log(line: str) -> None:
     """Progress lines go to stderr, so stdout carries only the result."""
-    print(line, file=sys.stderr, flush=True)
+    from tqdm.auto import tqdm
+
+    tqdm.write(line, file=sys.stderr)  # above any progress bar, which tqdm then redraws

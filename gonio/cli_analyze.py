@@ -33,10 +33,12 @@ def _analyze(args: argparse.Namespace) -> int:
     log = None if args.quiet else stderr_log
     models = parse_models(args.models) if args.models else None
     a = load_and_fit(args.source, models=models, loss=args.loss, starts=args.starts, samples=args.samples,
-                     seed=args.seed, compare=args.compare, log=log, errors=args.errors)  # fmt: skip
-    page = write_report(a, args.out or default_out(args.source), y_scale=args.y_scale, merl=args.merl, log=log)
+                     seed=args.seed, compare=args.compare, log=log, errors=args.errors,
+                     progress=not args.quiet)  # fmt: skip
+    page = write_report(a, args.out or default_out(args.source), y_scale=args.y_scale, merl=args.merl, log=log,
+                        svg=args.svg, progress=not args.quiet)  # fmt: skip
     print(page)
-    print(a.verdict())
+    print(a.text())
     return EXIT_OK
 
 
@@ -75,3 +77,5 @@ def add_fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--y-scale", default="auto", choices=("auto", "log", "linear"),
                    help="slices' y axis (default auto: log when the values span more than 50x)")  # fmt: skip
     p.add_argument("--merl", action="store_true", help="also export the chosen model as a MERL .binary (35 MB)")
+    p.add_argument("--svg", action="store_true", help="also write every figure as SVG beside its PNG (slower; the "
+                   "page links each PNG to its SVG)")  # fmt: skip
