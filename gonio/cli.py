@@ -13,8 +13,6 @@ from gonio.cli_calibrate import add_calibrate_parser
 from gonio.cli_run import EXIT_BAD_INPUT, EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_OK, add_run_parsers
 from gonio.cli_servo import add_servo_parser
 from gonio.cli_sim import add_sim_parser
-from rig.instrument.links.base import LinkError
-from rig.run.store import RunStoreError
 
 
 def _models(args: argparse.Namespace) -> int:
@@ -59,6 +57,11 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the gonio console script; returns the process exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    # After parsing, so `gonio --help` does not pay for them (rig.run.store pulls in numpy and the models); every
+    # command that can raise them imports them anyway.
+    from rig.instrument.links.base import LinkError
+    from rig.run.store import RunStoreError
+
     try:
         return int(args.func(args))
     except KeyboardInterrupt:

@@ -15,14 +15,20 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
-from rig.run.config import RigConfig, load_rig, load_sweep, rig_config
-from rig.run.config_schema import RigFile
+if TYPE_CHECKING:
+    from rig.run.config import RigConfig
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_HARDWARE, EXIT_CAMERA, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
 
 
 def _rig(path: str | None) -> RigConfig:
+    # Imported here, not at the top: the configuration's schema (pydantic) costs most of a second, and
+    # `gonio --help` or `gonio analyze` need none of it.
+    from rig.run.config import load_rig, rig_config
+    from rig.run.config_schema import RigFile
+
     return load_rig(path) if path else rig_config(RigFile(), "<built-in simulated rig>")
 
 
@@ -64,6 +70,7 @@ def _default_out(sweep: str) -> Path:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from rig.run.config import load_sweep
     from rig.run.runner import RunStopped
     from rig.run.session import start_run
 
@@ -93,6 +100,7 @@ def _resume(args: argparse.Namespace) -> int:
 
 
 def _plan(args: argparse.Namespace) -> int:
+    from rig.run.config import load_sweep
     from rig.run.session import make_plan
 
     rig, sweep = _rig(args.rig), load_sweep(args.sweep)

@@ -22,9 +22,24 @@ def test_models_writes_figure_and_table(tmp_path, capsys):
 
 
 def test_slice_peaks_at_the_mirror_direction():
+    # One sign convention everywhere: signed theta_o > 0 is forward of the light, where the mirror direction lies.
     theta_o = np.linspace(-89.0, 89.0, 357)
     f = in_plane_slice(m.CookTorrance(alpha=0.05, eta=1.5, fresnel="dielectric"), 40.0, theta_o)
-    assert theta_o[np.argmax(f[:, 0])] == -40.0
+    assert theta_o[np.argmax(f[:, 0])] == 40.0
+
+
+def test_gonio_models_the_report_and_the_sweep_files_share_the_theta_o_sign():
+    from analysis.report_plots import angles_of, in_plane_directions
+    from model.geometry import degrees_to_vector
+    from rig.run.sweeps import in_plane
+
+    signed = np.array([-60.0, -20.0, 20.0, 60.0])
+    wi, wo = in_plane_directions(35.0, signed)
+    rows = in_plane([35.0], signed.tolist())  # a sweep file's in-plane slice: theta_i, phi_i, theta_o, phi_o
+    np.testing.assert_allclose(wo, degrees_to_vector(rows[:, 2], rows[:, 3]), atol=1e-12)
+    np.testing.assert_allclose(angles_of(np.broadcast_to(wi, wo.shape), wo).signed_theta_o, signed, atol=1e-9)
+    brdf = m.CookTorrance(alpha=0.05, eta=1.5, fresnel="dielectric")
+    np.testing.assert_allclose(in_plane_slice(brdf, 35.0, signed), brdf.eval(wi, wo), rtol=1e-12)
 
 
 COMMANDS = [["demo"], ["models"], ["run"], ["plan"], ["resume"], ["servo", "scan"], ["servo", "ping"],
