@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from acquisition.files.atomic import write_atomic
+from analysis import report_notebook  # noqa: F401  (an Analysis displays itself in Jupyter once this is loaded)
 from analysis.ladder import fit_ladder
 from analysis.report_params import covariance_json, parameter_status
 from analysis.report_truth import compare_truth

@@ -12,7 +12,7 @@ copies stay small even for 20,000 MERL samples.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -172,12 +172,12 @@ def _plot_truth(a: Analysis, out: Path, svg: bool) -> FigureFile | None:
 
 def write_figures(
     a: Analysis, out: str | Path, *, y_scale: str = "auto", log: Callable[[str], None] | None = None,
-    svg: bool = False, progress: bool = False,
+    svg: bool = False, progress: bool = False, names: Sequence[str] | None = None,
 ) -> Figures:
     """Write slices, polar, residuals, coverage and uncertainty as PNG (and SVG if ``svg``) into ``out``.
 
     ``y_scale``: "auto", "log" or "linear" for the slices; ``progress``: a bar with ETA on stderr (tqdm.auto: the
-    notebook widget in Jupyter).
+    notebook widget in Jupyter); ``names``: only these figures (default: all).
     """
     if y_scale not in ("auto", "log", "linear"):
         raise ValueError(f"y scale {y_scale!r}: expected 'auto', 'log' or 'linear'")
@@ -185,9 +185,16 @@ def write_figures(
     out.mkdir(parents=True, exist_ok=True)
     ang = angles_of(a.samples.wi, a.samples.wo)
     cuts, cov = slices(ang), coverage(ang)
-    draws = (lambda: plot_slices(a, ang, cuts, out, y_scale, svg), lambda: plot_polar(a, ang, cuts, out, svg),
-             lambda: _plot_residuals(a, ang, out, svg), lambda: _plot_coverage(a, ang, cov, out, svg),
-             lambda: _plot_uncertainty(a, out, svg), lambda: _plot_truth(a, out, svg))  # fmt: skip
+    every = {"slices": lambda: plot_slices(a, ang, cuts, out, y_scale, svg),
+             "polar": lambda: plot_polar(a, ang, cuts, out, svg),
+             "residuals": lambda: _plot_residuals(a, ang, out, svg),
+             "coverage": lambda: _plot_coverage(a, ang, cov, out, svg),
+             "uncertainty": lambda: _plot_uncertainty(a, out, svg),
+             "truth": lambda: _plot_truth(a, out, svg)}  # fmt: skip
+    unknown = set(names or ()) - set(every)
+    if unknown:
+        raise ValueError(f"figures {sorted(unknown)}: expected names from {', '.join(every)}")
+    draws = [draw for name, draw in every.items() if names is None or name in names]
     files = []
     # Titles at a fixed height: placing each one above its axes' tick labels measured them all again on every save.
     with stage_bar(len(draws), "figures", progress, unit="fig") as bar, rc_context({"axes.titley": 1.0}):

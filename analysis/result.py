@@ -28,6 +28,9 @@ Log = Callable[[str], None]
 P_AT_NOISE = 0.05
 #: Above this p-value chi2 is suspiciously small: the std errors are probably overestimated.
 P_TOO_GOOD = 0.999
+#: How an Analysis renders in Jupyter; analysis.report_notebook registers its renderer here (the page's pieces sit
+#: above this module, so they cannot be imported from it).
+HTML_REPR: list[Callable[[Any], str]] = []
 
 
 def noise_words(r: FitResult) -> str:
@@ -135,6 +138,14 @@ class Analysis:
         r = self.selection.chosen
         return (f"chosen: {r.spec} ({type(r.model).__name__}, {r.n_params} parameters), chi2/dof = "
                 f"{r.reduced_chi2:.3g}, residuals {noise_words(r)} on {r.n_samples} samples")  # fmt: skip
+
+    def _repr_html_(self) -> str:
+        """Jupyter's display: the verdict, parameters, selection and key figures (plain text if none registered)."""
+        if HTML_REPR:
+            return HTML_REPR[0](self)
+        from html import escape
+
+        return f"<pre>{escape(self.text())}</pre>"
 
     def text(self) -> str:
         """What ``gonio analyze`` prints: the verdict, then each parameter of the chosen model and what pins it."""
