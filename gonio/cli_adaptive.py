@@ -10,8 +10,10 @@ from gonio.cli_run import EXIT_OK, _rig, _sigterm_as_interrupt, _stopped
 
 
 def _adaptive(args: argparse.Namespace) -> int:
+    from tqdm.auto import tqdm
+
     from analysis.ladder import parse_models
-    from rig.run.adaptive import AdaptiveSettings, run_adaptive
+    from rig.run.adaptive import AdaptiveSettings, Round, run_adaptive
     from rig.run.runner import RunStopped
 
     spec = None if args.model == "auto" else parse_models(args.model)[0]
@@ -20,9 +22,19 @@ def _adaptive(args: argparse.Namespace) -> int:
                                 reference_snr=args.reference_snr, seed=args.seed)  # fmt: skip
     rig = _rig(args.rig)
     print(f"adaptive sweep into {args.out}: {settings.budget} captures, model {args.model}", file=sys.stderr)
+    # A bar over the captures (rounds differ in size), its ETA from the rounds done; round lines print above it.
+    bar = tqdm(total=settings.budget, desc="adaptive", unit="capture", disable=args.quiet, dynamic_ncols=True)
+
+    def on_round(rnd: Round) -> None:
+        bar.update(rnd.captures - bar.n)
+        bar.set_postfix_str(f"round {rnd.index}", refresh=True)
+
+    def say(line: str) -> None:
+        tqdm.write(line, file=sys.stderr)
+
     try:
-        with _sigterm_as_interrupt():
-            result = run_adaptive(rig, Path(args.out), spec, settings)
+        with _sigterm_as_interrupt(), bar:
+            result = run_adaptive(rig, Path(args.out), spec, settings, on_round=on_round, log=say)
     except RunStopped as exc:
         return _stopped(exc)
     last = result.rounds[-1]
@@ -57,4 +69,5 @@ def add_adaptive_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]
                    "wants them about 2.5x the SNR a single long run would use")  # fmt: skip
     p.add_argument("--max-theta", type=float, default=70.0, help="largest zenith of any capture, deg (default 70)")
     p.add_argument("--seed", type=int, default=0, help="seed of the candidate pool (default 0)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_adaptive)
