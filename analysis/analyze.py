@@ -144,10 +144,10 @@ def default_out(source: str | Path) -> Path:
 
 def write_report(
     a: Analysis, out: str | Path, *, y_scale: str = "auto", merl: bool = False, log: Log | None = None,
-    svg: bool = False, progress: bool = False,
+    svg: bool = False, progress: bool = False, jobs: int = 1,
 ) -> Path:
     """Write figures/ (PNG; SVG too if ``svg``), fit.json, export/ (the chosen model for Mitsuba, glTF, optionally
-    MERL) and index.html; ``progress``: a bar with ETA over the figures."""
+    MERL) and index.html; ``progress``: a bar with ETA over the figures; ``jobs``: processes drawing figures."""
     from analysis.export import export_material
     from analysis.report_html import write_html
     from analysis.report_plots import write_figures
@@ -157,7 +157,7 @@ def write_report(
     if out.exists() and not out.is_dir():
         raise AnalysisError(f"--out {out}: exists and is not a directory")
     say(f"writing figures to {out / 'figures'}")
-    figures = write_figures(a, out / "figures", y_scale=y_scale, log=say, svg=svg, progress=progress)
+    figures = write_figures(a, out / "figures", y_scale=y_scale, log=say, svg=svg, progress=progress, jobs=jobs)
     text = json.dumps(fit_json(a), indent=2, allow_nan=False) + "\n"
     write_atomic(out / "fit.json", lambda tmp: tmp.write_text(text, encoding="utf-8"))
     say(f"wrote {out / 'fit.json'}")

@@ -22,6 +22,7 @@ from matplotlib import rc_context
 from matplotlib.colors import ListedColormap, Normalize
 from matplotlib.patches import Circle
 
+from analysis.figure_pool import run_draws
 from analysis.progress import stage_bar
 from analysis.report_layout import FigureFile, Margins, eval_channels, panel_figure, save_figure
 from analysis.report_slices import Angles, Slice, angles_of, in_plane_directions, plot_polar, plot_slices, slices
@@ -172,12 +173,13 @@ def _plot_truth(a: Analysis, out: Path, svg: bool) -> FigureFile | None:
 
 def write_figures(
     a: Analysis, out: str | Path, *, y_scale: str = "auto", log: Callable[[str], None] | None = None,
-    svg: bool = False, progress: bool = False, names: Sequence[str] | None = None,
+    svg: bool = False, progress: bool = False, names: Sequence[str] | None = None, jobs: int = 1,
 ) -> Figures:
     """Write slices, polar, residuals, coverage and uncertainty as PNG (and SVG if ``svg``) into ``out``.
 
     ``y_scale``: "auto", "log" or "linear" for the slices; ``progress``: a bar with ETA on stderr (tqdm.auto: the
-    notebook widget in Jupyter); ``names``: only these figures (default: all).
+    notebook widget in Jupyter); ``names``: only these figures (default: all); ``jobs``: figures drawn side by side
+    in up to this many forked processes where that is safe (analysis/figure_pool.py).
     """
     if y_scale not in ("auto", "log", "linear"):
         raise ValueError(f"y scale {y_scale!r}: expected 'auto', 'log' or 'linear'")
@@ -195,15 +197,13 @@ def write_figures(
     if unknown:
         raise ValueError(f"figures {sorted(unknown)}: expected names from {', '.join(every)}")
     draws = [draw for name, draw in every.items() if names is None or name in names]
-    files = []
     # Titles at a fixed height: placing each one above its axes' tick labels measured them all again on every save.
     with stage_bar(len(draws), "figures", progress, unit="fig") as bar, rc_context({"axes.titley": 1.0}):
-        for draw in draws:
-            made = draw()
+
+        def done(made: FigureFile | None) -> None:
             bar.update()
-            if made is None:
-                continue
-            files.append(made)
-            if log:
+            if made is not None and log:
                 log(f"wrote {made.png}")
-    return Figures(tuple(files), cuts, cov)
+
+        made = run_draws(draws, jobs, done)
+    return Figures(tuple(f for f in made if f is not None), cuts, cov)

@@ -18,7 +18,7 @@ from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.lines import Line2D
 from matplotlib.projections.polar import PolarAxes
-from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullLocator
+from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, MaxNLocator, NullLocator
 
 from analysis.report_layout import (
     CANDIDATE_COLOURS,
@@ -187,17 +187,23 @@ def plot_slices(a: Analysis, ang: Angles, cuts: tuple[Slice, ...], out: Path, y_
                 handles.setdefault("saturated: lower bound", Line2D([], [], ls="none", marker="^", mfc="none",
                                                                     color="0.3", ms=6))  # fmt: skip
             top = max(float(np.nanmax(curves[j][chosen.name][:, ch])), float(np.max(y + 2 * e, initial=0.0))) or 1.0
+            # Few ticks: each one is a dozen matplotlib objects, and ticks were most of the slices' drawing time.
+            ax.xaxis.set_major_locator(FixedLocator([-90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0]))
             if log:
                 ax.set_yscale("log")
-                # Plain labels at 1-2-5: the default mathtext labels of minor ticks cost seconds per figure.
-                ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
-                ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-                ax.yaxis.set_minor_locator(NullLocator())
                 pos = np.concatenate([y[y > 0] * LOG_BAR_FLOOR, curves[j][chosen.name][:, ch]])
                 pos = pos[pos > 0]
-                ax.set_ylim(max(float(pos.min()) / 1.5 if pos.size else 1e-6, top * 1e-6), top * 3)
+                bottom = max(float(pos.min()) / 1.5 if pos.size else 1e-6, top * 1e-6)
+                ax.set_ylim(bottom, top * 3)
+                # Plain labels (the default mathtext ones cost seconds per figure), at 1-2-5 over up to two
+                # decades and at the decades beyond.
+                subs = (1.0, 2.0, 5.0) if top * 3 / bottom <= 150 else (1.0,)
+                ax.yaxis.set_major_locator(LogLocator(subs=subs, numticks=8))
+                ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+                ax.yaxis.set_minor_locator(NullLocator())
             else:
                 ax.set_ylim(0.0, 1.15 * top if top > 0 else 1.0)
+                ax.yaxis.set_major_locator(MaxNLocator(5))
             ax.grid(alpha=0.3)
             ax.set_title(f"θi = {cut.theta_i_deg:.3g}° ({len(idx)} samples), channel {names[ch]}", fontsize=9)
             if j == 0:

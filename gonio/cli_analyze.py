@@ -9,6 +9,7 @@ with the message naming the path.
 from __future__ import annotations
 
 import argparse
+import os
 
 from gonio.cli_run import EXIT_OK
 
@@ -36,7 +37,7 @@ def _analyze(args: argparse.Namespace) -> int:
                      seed=args.seed, compare=args.compare, log=log, errors=args.errors,
                      progress=not args.quiet)  # fmt: skip
     page = write_report(a, args.out or default_out(args.source), y_scale=args.y_scale, merl=args.merl, log=log,
-                        svg=args.svg, progress=not args.quiet)  # fmt: skip
+                        svg=args.svg, progress=not args.quiet, jobs=args.jobs)  # fmt: skip
     print(page)
     print(a.text())
     return EXIT_OK
@@ -57,6 +58,8 @@ def add_analyze_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     p.add_argument("--out", help="report directory (default: RUN/analysis, or <name>-analysis beside a MERL file)")
     add_fit_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--jobs", type=_positive, default=min(os.cpu_count() or 1, 4),
+                   help="processes drawing the figures side by side (default: the cores, at most 4; 1: none)")
     p.set_defaults(func=_analyze)
 
 

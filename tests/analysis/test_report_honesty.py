@@ -164,3 +164,23 @@ def test_figures_show_progress_with_an_eta(conductor: Analysis, tmp_path: Path, 
     write_figures(conductor, tmp_path, progress=True)
     err = capsys.readouterr().err
     assert "figures" in err and re.search(r"\d+/6 \[[0-9:]+<[0-9:?]+", err), err
+
+
+def test_figures_drawn_side_by_side_are_the_same_bytes(conductor: Analysis, tmp_path: Path) -> None:
+    from analysis.figure_pool import fork_safe
+
+    one = write_figures(conductor, tmp_path / "one", jobs=1)
+    two = write_figures(conductor, tmp_path / "two", jobs=2)
+    assert [f.name for f in one.files] == [f.name for f in two.files]
+    assert all(f.png.read_bytes() == g.png.read_bytes() for f, g in zip(one.files, two.files, strict=True))
+    # A fork copies only the calling thread: with another one running, the figures are drawn here instead.
+    import threading
+
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait)
+    other.start()
+    try:
+        assert not fork_safe()
+    finally:
+        stop.set()
+        other.join()
