@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from analysis.report_params import parameter_status, undetermined_text
 from model.base import BRDF
 from model.fit.samples import Samples
 from model.fit.select import Candidate, Selection
@@ -149,8 +150,6 @@ class Analysis:
 
     def text(self) -> str:
         """What ``gonio analyze`` prints: the verdict, then each parameter of the chosen model and what pins it."""
-        from analysis.report_params import parameter_status, undetermined_text
-
         r = self.selection.chosen
         status = parameter_status(r, self.spec(r.spec), self.samples.channels)
         width = max(len(p.name) for p in status)
