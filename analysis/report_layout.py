@@ -48,8 +48,7 @@ class Margins:
 
 
 def panel_figure(
-    size: tuple[float, float], rows: int, cols: int, margins: Margins = Margins(), *, polar: bool = False,
-    sharex: bool = False,
+    size: tuple[float, float], rows: int, cols: int, margins: Margins = Margins(), *, sharex: bool = False,
 ) -> tuple[Figure, np.ndarray, Axes | None]:
     """A figure of ``size`` (inches) with rows x cols panels (an object array, 2-D) and an optional colour-bar axes."""
     fig = Figure(figsize=size)
@@ -69,8 +68,7 @@ def panel_figure(
             x0 = m.left + j * (aw + m.wgap)
             y0 = h - m.top - (i + 1) * ah - i * m.hgap
             rect = (x0 / w, y0 / h, aw / w, ah / h)
-            ax = fig.add_axes(rect, projection="polar") if polar else fig.add_axes(rect, sharex=first if sharex
-                                                                                   else None)  # fmt: skip
+            ax = fig.add_axes(rect, sharex=first if sharex else None)
             first = first or ax
             if sharex and i < rows - 1:
                 ax.tick_params(labelbottom=False)

@@ -17,7 +17,6 @@ import numpy.typing as npt
 from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.lines import Line2D
-from matplotlib.projections.polar import PolarAxes
 from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, MaxNLocator, NullLocator
 
 from analysis.report_layout import (
@@ -225,39 +224,54 @@ def plot_slices(a: Analysis, ang: Angles, cuts: tuple[Slice, ...], out: Path, y_
     return FigureFile("slices", png, svg_path, cap)
 
 
+def _polar_frame(ax: Axes, rmax: float) -> None:
+    """A half-disc polar frame on ordinary axes: rim, three radii labelled under the horizon, spokes every 30 deg.
+
+    Drawn as a handful of lines and labels: matplotlib's polar axes built a hundred tick artists per panel (most
+    of the figure's time) and set their radial labels on top of each other.
+    """
+    arc = np.radians(np.linspace(-90.0, 90.0, 181))
+    radii = [r for r in MaxNLocator(3).tick_values(0.0, rmax) if 0 < r < rmax * 0.999]
+    for r in (*radii, rmax):
+        ax.plot(r * np.sin(arc), r * np.cos(arc), color="0.55" if r == rmax else "0.85", lw=0.8, zorder=1)
+    for r in radii:  # below the horizon, where no data can lie over them
+        ax.text(-r, -0.03 * rmax, f"{r:.2g}", ha="center", va="top", fontsize=7, color="0.35")
+    for deg in (-90, -60, -30, 0, 30, 60, 90):
+        t = np.radians(deg)
+        ax.plot([0.0, rmax * np.sin(t)], [0.0, rmax * np.cos(t)], color="0.85", lw=0.8, zorder=1)
+        ax.text(1.07 * rmax * np.sin(t), 1.07 * rmax * np.cos(t), f"{deg}°", ha="center", va="center", fontsize=7)
+    ax.set(xlim=(-1.2 * rmax, 1.2 * rmax), ylim=(-0.13 * rmax, 1.15 * rmax), aspect="equal")
+    ax.set_axis_off()
+
+
 def plot_polar(a: Analysis, ang: Angles, cuts: tuple[Slice, ...], out: Path, svg: bool) -> FigureFile:
-    """Write polar.png: f_r cos theta_o (1/sr) against theta_o per slice, data and the chosen model per channel."""
+    """Write polar.png: f_r cos theta_o (1/sr) against theta_o per slice, data and the chosen model per channel.
+
+    The normal points up and signed theta_o > 0 (forward of the light) lies to its right.
+    """
     s = a.samples
     c = s.channels
     names = ["r", "g", "b"] if c == 3 else [str(i) for i in range(c)]
-    fig, axes, _ = panel_figure((4.0 * len(cuts) + 0.5, 3.0), 1, len(cuts),
-                                Margins(left=0.35, right=0.35, top=0.55, bottom=0.0, wgap=0.6, legend=0.35),
-                                polar=True)  # fmt: skip
+    fig, axes, _ = panel_figure((4.0 * len(cuts) + 0.5, 2.7), 1, len(cuts),
+                                Margins(left=0.2, right=0.2, top=0.35, bottom=0.05, wgap=0.3, legend=0.35))
     for j, cut in enumerate(cuts):
-        ax: PolarAxes = axes[0, j]
-        ax.set_theta_zero_location("N")
-        ax.set_theta_direction(-1)  # positive (forward) angles to the right of the normal
-        ax.set_thetamin(-90)
-        ax.set_thetamax(90)
+        ax: Axes = axes[0, j]
         to, wi, wo = _slice_dirs(cut.theta_i_deg)
         f = eval_channels(a.selection.chosen.model, wi, wo, c) * np.cos(np.radians(to))[:, None]
         idx = cut.index[~s.lower_bound[cut.index]]
         y = s.value[idx] * np.cos(np.radians(ang.theta_o[idx]))[:, None]
+        rmax = max(float(f.max()), float(y.max(initial=0.0))) * 1.1 or 1.0
+        _polar_frame(ax, rmax)
+        t_curve, t_data = np.radians(to), np.radians(ang.signed_theta_o[idx])
         for ch in range(c):
             colour = CHANNEL_COLOURS[ch % 3]
-            ax.plot(np.radians(to), f[:, ch], color=colour, lw=1.5)
-            ax.plot(np.radians(ang.signed_theta_o[idx]), y[:, ch], "o", ms=3, color=colour, rasterized=len(idx) > 40)
-        rmax = max(float(f.max()), float(y.max(initial=0.0))) * 1.1 or 1.0
-        ax.set_rmax(rmax)
-        # Three radial labels along the normal, clear of each other and of the angle labels at the rim.
-        ax.yaxis.set_major_locator(MaxNLocator(3))
-        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.2g}"))
-        ax.set_rlabel_position(0.0)
-        ax.set_xticks(np.radians([-90, -60, -30, 0, 30, 60, 90]))
-        ax.annotate("", xy=(0.0, 0.0), xytext=(np.radians(-cut.theta_i_deg), rmax),
+            ax.plot(f[:, ch] * np.sin(t_curve), f[:, ch] * np.cos(t_curve), color=colour, lw=1.5, zorder=3)
+            ax.plot(y[:, ch] * np.sin(t_data), y[:, ch] * np.cos(t_data), "o", ms=3, color=colour, zorder=4,
+                    rasterized=len(idx) > 40)  # fmt: skip
+        ti = np.radians(cut.theta_i_deg)
+        ax.annotate("", xy=(0.0, 0.0), xytext=(-rmax * np.sin(ti), rmax * np.cos(ti)),
                     arrowprops={"arrowstyle": "->", "color": "0.4"})  # fmt: skip
-        ax.set_title(f"θi = {cut.theta_i_deg:.3g}°: f_r cos θo (1/sr)", fontsize=9, pad=18)  # clear of the 0° label
-        ax.tick_params(labelsize=7)
+        ax.set_title(f"θi = {cut.theta_i_deg:.3g}°: f_r cos θo (1/sr)", fontsize=9)
     # The legend says what the line and the dots are, and which colour is which channel.
     kinds = [Line2D([], [], color="0.2", lw=1.5), Line2D([], [], ls="none", marker="o", ms=3, color="0.2")]
     chans = [Line2D([], [], color=CHANNEL_COLOURS[ch % 3], lw=4) for ch in range(c)]
