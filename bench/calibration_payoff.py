@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from bench._tradeoff import GOLD, MAX_THETA, PLASTIC, Material, grid_design
+from analysis.batch.tradeoff import GOLD, MAX_THETA, PLASTIC, Material, grid_design
 from model.fit.angular import fit_with_angular
 from model.fit.design import brdf_error, error_pairs
 from model.fit.samples import Samples

@@ -19,7 +19,8 @@ from analysis.result import Analysis
 from gonio import cli
 from model import CookTorrance
 from model.base import Model
-from model.fit.select import select
+from model.fit.angular import fit_with_angular
+from model.fit.select import Candidate, choose
 from model.geometry import degrees_to_vector
 from model.merl import MerlTable, write_merl
 from model.serialize import from_json_dict
@@ -28,7 +29,8 @@ from tests.run_helpers import GOLD, in_plane_sweep, sim_rig
 
 PNG = b"\x89PNG\r\n\x1a\n"
 FIGURES = ("slices", "polar", "residuals", "coverage", "uncertainty")
-RUN_FIGURES = (*FIGURES, "truth")  # a simulated run's report also compares the fit with the true material
+# A simulated run's report also compares the fit with the true material.
+RUN_FIGURES = (*FIGURES, "truth")
 THETA_O = [-70.0, -50.0, -30.0, -10.0, 0.0, 10.0, 30.0, 50.0, 70.0]
 PLASTIC = CookTorrance(alpha=0.2, fresnel="dielectric", eta=1.5, rho_d=(0.2, 0.3, 0.4))
 
@@ -120,7 +122,12 @@ def test_point_errors_weight_by_the_capture_noise_and_say_so(gold_run: Path, tmp
 @pytest.mark.mitsuba
 def test_the_ladder_chooses_exactly_as_select_does(gold_report: tuple[Analysis, Path]) -> None:
     a, _ = gold_report
-    ref = select(a.samples, list(a.ladder), loss=a.loss, starts=a.starts)
+    # A run's points carry a direction covariance, so each candidate is fitted with effective errors
+    # (photometric plus angular); the choice among them is select()'s own.
+    assert a.samples.direction_cov.size
+    cands = [Candidate(s.name, len(s.labels(a.samples.channels)),
+                       fit_with_angular(s, a.samples, a.loss, starts=a.starts)[0]) for s in a.ladder]  # fmt: skip
+    ref = choose(cands)
     assert a.selection.chosen_name == ref.chosen_name and a.selection.reason == ref.reason
     assert a.selection.table() == ref.table()
     assert set(a.fit_times_s) == {c.name for c in ref.candidates} and min(a.fit_times_s.values()) > 0
