@@ -148,7 +148,6 @@ def write_report(
 ) -> Path:
     """Write figures/ (PNG; SVG too if ``svg``), fit.json, export/ (the chosen model for Mitsuba, glTF, optionally
     MERL) and index.html; ``progress``: a bar with ETA over the figures; ``jobs``: processes drawing figures."""
-    from analysis.export import export_material
     from analysis.report_html import write_html
     from analysis.report_plots import write_figures
 
@@ -162,6 +161,9 @@ def write_report(
     write_atomic(out / "fit.json", lambda tmp: tmp.write_text(text, encoding="utf-8"))
     say(f"wrote {out / 'fit.json'}")
     say(f"exporting the chosen model to {out / 'export'}" + (" (with a 35 MB MERL table)" if merl else ""))
+    # Imported only now: it loads Mitsuba, whose threads would keep the figures from being drawn in forked workers.
+    from analysis.export import export_material
+
     exports = export_material(a.selection.chosen.model, out / "export", merl=merl)
     return write_html(a, figures, out / "index.html", exports)
 
