@@ -153,7 +153,7 @@ def test_the_command_runs_on_an_existing_scheduler_and_shows_progress(cluster: A
     out = tmp_path / "cli"
     shutil.copytree(first[1], out)  # a batch directory moves whole: its records and relative paths still hold
     argv = ["batch", "analyze", str(inputs["gold"]), str(inputs["corrupt"]), "--out", str(out), "--models", MODELS,
-            "--starts", str(STARTS), "--samples", str(MERL_SAMPLES),
+            "--starts", str(STARTS), "--samples", str(MERL_SAMPLES), "--svg",
             "--scheduler", cluster.scheduler.address]  # fmt: skip
     code = cli.main(argv)
     captured = capsys.readouterr()
