@@ -20,7 +20,10 @@ from typing import Any
 import numpy as np
 
 from acquisition.files.atomic import write_atomic
+from analysis import report_notebook  # noqa: F401  (an Analysis displays itself in Jupyter once this is loaded)
 from analysis.ladder import fit_ladder
+from analysis.report_params import covariance_json, parameter_status
+from analysis.report_truth import compare_truth
 from analysis.result import Analysis, AnalysisError, Log, Reference
 from analysis.sources import (
     DEFAULT_MERL_SAMPLES,
@@ -52,6 +55,7 @@ def load_and_fit(
     compare: str | Path | None = None,
     log: Log | None = None,
     errors: str = "total",
+    progress: bool = False,
 ) -> Analysis:
     """Load a run, an adaptive sweep, a samples table or a MERL file (``samples`` random bins), fit and choose."""
     say = log or (lambda _: None)
@@ -87,7 +91,7 @@ def load_and_fit(
     try:
         angular: dict[str, Any] = {}
         selection, times, caught = fit_ladder(data, ladder, loss=loss, starts=starts, seed=seed, log=say,
-                                              angular=angular)  # fmt: skip
+                                              angular=angular, progress=progress)  # fmt: skip
     except FitError as exc:
         raise AnalysisError(f"{path}: cannot fit: {exc}") from exc
     variance = angular.get(selection.chosen_name) if data.direction_cov.size else None
@@ -131,13 +135,16 @@ def fit_json(a: Analysis) -> dict[str, Any]:
                 "chi2": r.chi2, "dof": r.dof, "reduced_chi2": r.reduced_chi2, "p_value": r.p_value, "aic": r.aic,
                 "bic": r.bic, f"delta_{sel.criterion}": c.criterion(sel.criterion) - best,
                 "noise_reached": r.noise_reached, "warnings": list(r.warnings), "model": model_json(r.model),
+                **covariance_json(r),
+                "parameters": {p.name: p.as_dict() for p in parameter_status(r, a.spec(c.name), a.samples.channels)},
             }  # fmt: skip
         cands.append(doc)
     return _plain({
         "source": a.source.as_dict(), "loss": a.loss, "errors": a.errors, "starts": a.starts,
         "criterion": sel.criterion, "n_samples": a.samples.n, "chosen": sel.chosen_name, "reason": sel.reason,
         "candidates": cands,
-        "model": model_json(sel.chosen.model), "warnings": list(a.warnings), "uncertainty": uncertainty_json(a),
+        "model": model_json(sel.chosen.model), **covariance_json(sel.chosen), "warnings": list(a.warnings),
+        "uncertainty": uncertainty_json(a), "truth": None if (true := compare_truth(a)) is None else true.as_dict(),
     })  # fmt: skip
 
 
@@ -149,13 +156,13 @@ def default_out(source: str | Path) -> Path:
 
 def write_report(
     a: Analysis, out: str | Path, *, y_scale: str = "auto", merl: bool = False, log: Log | None = None,
-    mitsuba_plugin: bool = False,
+    mitsuba_plugin: bool = False, svg: bool = False, progress: bool = False, jobs: int = 1,
 ) -> Path:
-    """Write figures/, fit.json, export/ (the chosen model for Mitsuba, glTF, optionally MERL) and index.html.
+    """Write figures/ (PNG; SVG too if ``svg``), fit.json, export/ (the chosen model for Mitsuba, glTF, optionally
+    MERL) and index.html; ``progress``: a bar with ETA over the figures; ``jobs``: processes drawing figures.
 
     ``mitsuba_plugin`` adds export/mitsuba_gonio_plugin.xml, the exact model for processes that have gonio.
     """
-    from analysis.export import export_material, export_notes
     from analysis.report_html import write_html
     from analysis.report_plots import write_figures
 
@@ -164,11 +171,14 @@ def write_report(
     if out.exists() and not out.is_dir():
         raise AnalysisError(f"--out {out}: exists and is not a directory")
     say(f"writing figures to {out / 'figures'}")
-    figures = write_figures(a, out / "figures", y_scale=y_scale, log=say)
+    figures = write_figures(a, out / "figures", y_scale=y_scale, log=say, svg=svg, progress=progress, jobs=jobs)
     text = json.dumps(fit_json(a), indent=2, allow_nan=False) + "\n"
     write_atomic(out / "fit.json", lambda tmp: tmp.write_text(text, encoding="utf-8"))
     say(f"wrote {out / 'fit.json'}")
     say(f"exporting the chosen model to {out / 'export'}" + (" (with a 35 MB MERL table)" if merl else ""))
+    # Imported only now: it loads Mitsuba, whose threads would keep the figures from being drawn in forked workers.
+    from analysis.export import export_material, export_notes
+
     exports = export_material(a.selection.chosen.model, out / "export", merl=merl, gonio_plugin=mitsuba_plugin)
     return write_html(a, figures, out / "index.html", exports, notes=export_notes(exports))
 
@@ -188,14 +198,18 @@ def analyze(
     log: Log | None = None,
     errors: str = "total",
     mitsuba_plugin: bool = False,
+    svg: bool = False,
+    progress: bool = False,
 ) -> Path:
-    """Analyse a run directory or MERL file into ``out`` (default: see default_out); returns index.html's path."""
+    """Analyse a run, adaptive sweep, table or MERL file into ``out`` (default: see default_out); returns index.html."""
     a = load_and_fit(source, models=models, loss=loss, starts=starts, samples=samples, seed=seed, compare=compare,
-                     log=log, errors=errors)  # fmt: skip
+                     log=log, errors=errors, progress=progress)  # fmt: skip
     return write_report(a, default_out(source) if out is None else out, y_scale=y_scale, merl=merl, log=log,
-                        mitsuba_plugin=mitsuba_plugin)  # fmt: skip
+                        mitsuba_plugin=mitsuba_plugin, svg=svg, progress=progress)  # fmt: skip
 
 
 def stderr_log(line: str) -> None:
     """Progress lines go to stderr, so stdout carries only the result."""
-    print(line, file=sys.stderr, flush=True)
+    from tqdm.auto import tqdm
+
+    tqdm.write(line, file=sys.stderr)  # above any progress bar, which tqdm then redraws

@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import numpy.typing as npt
 
+from analysis.progress import stage_bar
 from analysis.result import AnalysisError, Log
 from model.fit.angular import fit_with_angular
 from model.fit.samples import FitError, Samples
@@ -60,15 +61,18 @@ def fit_ladder(
     delta: float = 2.0,
     log: Log | None = None,
     angular: dict[str, Array] | None = None,
+    progress: bool = False,
 ) -> tuple[Selection, dict[str, float], list[str]]:
     """Fit every candidate (timed, warnings captured) and choose as select() does: (selection, seconds, warnings).
 
     Samples with a direction covariance are fitted with effective errors (photometric plus angular,
     :func:`model.fit.angular.fit_with_angular`); ``angular``, if given, receives each candidate's angular
-    variance per sample (N, C) in (1/sr)^2.
+    variance per sample (N, C) in (1/sr)^2. ``progress``: a bar with ETA over the candidates (stderr).
     """
     cands, times, caught = [], {}, []
+    bar = stage_bar(len(ladder), "fitting", progress, unit="model")
     for spec in ladder:
+        bar.set_postfix_str(spec.name, refresh=False)
         k = len(spec.labels(samples.channels))
         start = time.perf_counter()
         with warnings.catch_warnings(record=True) as got:
@@ -81,11 +85,18 @@ def fit_ladder(
             except FitError as exc:
                 cand = Candidate(spec.name, k, None, str(exc))
         times[spec.name] = time.perf_counter() - start
-        caught += [str(w.message) if issubclass(w.category, FitWarning) else f"{w.category.__name__}: {w.message}"
-                   for w in got]  # fmt: skip
+        # A fit with angular errors is several fits in turn, each warning with its own numbers; only the last
+        # fit's notes describe the result (model.fit.solve prefixes them with the spec's name, as here).
+        caught += [f"{w.category.__name__}: {w.message}" for w in got if not issubclass(w.category, FitWarning)]
+        if cand.result is not None:
+            caught += [f"{spec.name}: {note}" for note in cand.result.warnings]
+        else:
+            caught += [str(w.message) for w in got if issubclass(w.category, FitWarning)]
         cands.append(cand)
         if log:
             r = cand.result
             how = f"chi2/dof = {r.reduced_chi2:.4g}" if r is not None else f"not fitted: {cand.error}"
             log(f"fitting {spec.name} ({k} parameters): {how} ({times[spec.name]:.2f} s)")
+        bar.update()
+    bar.close()
     return choose(cands, criterion, delta), times, list(dict.fromkeys(caught))

@@ -18,8 +18,10 @@ from html import escape
 from pathlib import Path
 
 from acquisition.files.atomic import write_atomic
+from analysis.report_params import correlation, parameter_status, undetermined_text
 from analysis.report_plots import Figures
-from analysis.result import Analysis
+from analysis.report_truth import MAX_THETA_DEG, compare_truth
+from analysis.result import Analysis, noise_words
 from model.fit.solve import FitResult
 from model.version import gonio_version
 
@@ -44,9 +46,14 @@ h2 { font-size: 1.15em; margin-top: 1.8em; border-bottom: 1px solid #ddd; }
 .verdict { font-size: 1.1em; background: #eef6ee; padding: 0.6em 0.9em; border-left: 4px solid #009E73; }
 .warn { background: #fff4e0; padding: 0.6em 0.9em; border-left: 4px solid #D55E00; font-weight: 600; }
 table { border-collapse: collapse; margin: 0.5em 0; font-size: 0.93em; }
+.scroll { max-width: 100%; overflow-x: auto; }
+.scroll table { margin: 0; }
+@media (max-width: 900px) { body { font-size: 14px; } th, td { padding: 0.2em 0.4em; } }
 th, td { padding: 0.25em 0.7em; border-bottom: 1px solid #e4e4e4; text-align: left; vertical-align: top; }
 td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
+td.rho { text-align: right; font-variant-numeric: tabular-nums; min-width: 3.2em; }
 tr.chosen td { font-weight: 700; background: #f3f8ff; }
+tr.flag td { background: #fff4e0; }
 figure { margin: 1.2em 0; } figure img { max-width: 100%; border: 1px solid #eee; }
 figcaption { color: #444; font-size: 0.93em; } .muted { color: #777; font-size: 0.88em; }
 """
@@ -72,7 +79,8 @@ def _table(header: list[str], rows: list[tuple[list[str], str]]) -> str:
     for cells, cls in rows:
         tds = "".join(f'<td class="num">{c}</td>' if _looks_numeric(c) else f"<td>{c}</td>" for c in cells)
         body.append(f'<tr class="{cls}">{tds}</tr>' if cls else f"<tr>{tds}</tr>")
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+    # Wide tables scroll inside their own box instead of pushing columns off a narrow page.
+    return f'<div class="scroll"><table><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody></table></div>'
 
 
 def _looks_numeric(cell: str) -> bool:
@@ -109,12 +117,41 @@ def _source(a: Analysis) -> str:
 
 
 def _parameters(r: FitResult, a: Analysis) -> str:
-    rows = [([escape(n), f"{_num(v)} ± {_num(e, '.2g')}", escape(_meaning(n))], "")
-            for n, v, e in zip(r.names, r.values, r.std_errors, strict=True)]  # fmt: skip
+    status = parameter_status(r, a.spec(r.spec), a.samples.channels)
+    rows = [([escape(p.name), escape(p.value_text()), escape(p.note() or "yes"), escape(_meaning(p.name))],
+             "" if p.determined and p.bound is None else "flag") for p in status]  # fmt: skip
     fixed = ", ".join(f"{k} = {v}" for k, v in a.spec(r.spec).fixed.items())
     head = f"<p><b>{escape(r.spec)}</b>: model class <code>{escape(type(r.model).__name__)}</code>"
     head += f"; held fixed: {escape(fixed)}</p>" if fixed else "</p>"
-    return head + _table(["parameter", "value ± std error", "meaning (units)"], rows)
+    problem = undetermined_text(status)
+    warn = f'<p class="warn">{escape(problem)} (see the table).</p>' if problem else ""
+    table = _table(["parameter", "value ± std error", "pinned down by the data?", "meaning (units)"], rows)
+    return head + warn + table + _correlations(r)
+
+
+def _correlations(r: FitResult) -> str:
+    """The correlation matrix as a table shaded by |rho|, and where the covariance lives."""
+    if r.n_params < 2:
+        return ""
+    rho = correlation(r.covariance)
+    head = "".join(f"<th>{escape(n)}</th>" for n in r.names)
+    body = []
+    for i, name in enumerate(r.names):
+        cells = []
+        for j in range(r.n_params):
+            v = rho[i, j]
+            if not math.isfinite(v):
+                cells.append('<td class="rho">n/a</td>')
+                continue
+            # Shade strong correlations: blue for positive, red for negative, by |rho|.
+            w = abs(v) if i != j else 0.0
+            colour = f"rgba({'0,114,178' if v > 0 else '213,94,0'},{0.55 * w * w:.2f})"
+            cells.append(f'<td class="rho" style="background:{colour}">{v:+.2f}</td>')
+        body.append(f"<tr><th>{escape(name)}</th>{''.join(cells)}</tr>")
+    note = ("<p>Correlations of the fitted parameters (from the covariance in fit.json, native units; "
+            "|ρ| near 1: the data fix a combination of the two, not each alone).</p>")  # fmt: skip
+    return (f'{note}<div class="scroll"><table class="corr"><thead><tr><th></th>{head}</tr></thead>'
+            f"<tbody>{''.join(body)}</tbody></table></div>")
 
 
 def _selection(a: Analysis) -> str:
@@ -130,11 +167,56 @@ def _selection(a: Analysis) -> str:
         r = c.result
         rows.append(([escape(c.name) + (" (chosen)" if r is sel.chosen else ""), str(c.n_params), _num(r.chi2, ".5g"),
                       _num(r.reduced_chi2), _num(r.p_value, ".3g"), _num(r.aic, ".5g"), _num(r.bic, ".5g"),
-                      _num(c.criterion(sel.criterion) - best, ".3g"), "yes" if r.noise_reached else "no"],
+                      _num(c.criterion(sel.criterion) - best, ".3g"), escape(noise_words(r))],
                      "chosen" if r is sel.chosen else ""))  # fmt: skip
     # No fit times: the page, like fit.json, depends on the inputs alone (the same bytes from a batch).
-    header = ["candidate", "k", "chi2", "chi2/dof", "p", "AIC", "BIC", f"Δ{crit}", "at noise"]
+    header = ["candidate", "k", "chi2", "chi2/dof", "p", "AIC", "BIC", f"Δ{crit}", "residuals"]
     return _table(header, rows) + f"<p>{escape(sel.reason)}</p>"
+
+
+def _truth(a: Analysis) -> list[str]:
+    """The heading and body of the comparison with a simulated run's true material (nothing for other sources)."""
+    cmp = compare_truth(a)
+    if cmp is None:
+        return []
+    err = (f"<p>Relative L2 error of the fitted f_r cos θi cos θo against the truth: "
+           f"<b>{100 * cmp.error_at_samples:.3g} %</b> at the measured directions, <b>{100 * cmp.error_hemisphere:.3g} "
+           f"%</b> over the hemisphere (θ up to {MAX_THETA_DEG:g}°).</p>")  # fmt: skip
+    if cmp.params is None:
+        return ["<h2>Against the truth (simulated run)</h2>", err,
+                f"<p>Parameters not compared: {escape(str(cmp.why_not))}.</p>"]  # fmt: skip
+    rows = [([escape(p.name), _num(p.fitted), _num(p.std_error, ".2g"), _num(p.true), _num(p.z, "+.2f")],
+             "" if not abs(p.z) > 2 else "flag") for p in cmp.params]  # fmt: skip
+    table = _table(["parameter", "fitted", "std error", "true", "(fitted − true) / σ"], rows)
+    return ["<h2>Against the truth (simulated run)</h2>", err, table]
+
+
+def page_warnings(a: Analysis) -> list[str]:
+    """Every warning once: one the candidates share is listed once with their names, and a candidate's "at a
+    bound" note names the bound itself (0, not the 6e-24 the optimiser stopped at)."""
+    fitted = [c for c in a.selection.candidates if c.result is not None]
+    by_text: dict[str, list[str]] = {}
+    for w in a.warnings:
+        owner = next((c for c in fitted if w.startswith(f"{c.name}: ")), None)
+        if owner is None or owner.result is None:
+            by_text.setdefault(w, [])
+            continue
+        text = w[len(owner.name) + 2 :]
+        if text.startswith("at a bound:"):
+            status = parameter_status(owner.result, a.spec(owner.name), a.samples.channels)
+            at = ", ".join(f"{p.name} = {p.value_text()}" for p in status if p.bound is not None)
+            text = f"at a bound: {at}; their std errors assume the bound is not there" if at else text
+        by_text.setdefault(text, []).append(owner.name)
+    out = []
+    for text, names in by_text.items():
+        if not names:
+            out.append(text)
+        elif len(names) == 1:
+            out.append(f"{names[0]}: {text}")
+        else:
+            out.append(f"{text} (every one of {', '.join(names)})" if len(names) == len(fitted) and len(names) > 2
+                       else f"{text} ({' and '.join(names)})")  # fmt: skip
+    return out
 
 
 def _figures(figs: Figures) -> str:
@@ -177,13 +259,14 @@ def render_html(
     r = a.selection.chosen
     name = a.source.path.name or str(a.source.path)
     banner = f'<p class="warn">{escape(a.source.warning)}</p>' if a.source.warning else ""
-    warns = "".join(f"<li>{escape(w)}</li>" for w in a.warnings)
+    warns = "".join(f"<li>{escape(w)}</li>" for w in page_warnings(a))
     body = [
         f"<h1>gonio analysis: {escape(name)}</h1>",
         f'<p class="verdict">{escape(a.verdict())}</p>', banner,
         "<h2>Source</h2>", _source(a),
         "<h2>Chosen model</h2>", _parameters(r, a),
         "<h3>Exports of the chosen model</h3>" if exports else "", _exports(exports or {}, page, notes),
+        *_truth(a),
         "<h2>Model selection</h2>", _selection(a),
         "<h2>Warnings</h2>", f"<ul>{warns}</ul>" if warns else "<p>None.</p>",
         "<h2>Figures</h2>", _figures(figs),

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from analysis.report_layout import Margins, panel_figure
 from analysis.result import Analysis
 from analysis.uncertainty import NORMAL, angular_summary, truth, z_scores
 from model.base import BRDF
@@ -23,9 +23,9 @@ from model.geometry import to_half_diff
 def uncertainty_figure(a: Analysis) -> tuple[Figure, str]:
     """The figure (not yet saved) and its caption."""
     ang = angular_summary(a)
-    fig = Figure(figsize=(10.5, 4.0), layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(1, 2 if ang["included"] else 1, squeeze=False)[0]
+    fig, grid, _ = panel_figure((10.5, 4.0), 1, 2 if ang["included"] else 1,
+                                Margins(left=0.7, bottom=0.6, top=0.35, wgap=0.9))  # fmt: skip
+    axes = grid[0]
     left = axes[0]
     bins = np.linspace(-5, 5, 41)
     grid = np.linspace(-5, 5, 201)

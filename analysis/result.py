@@ -16,12 +16,41 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from analysis.report_params import parameter_status, undetermined_text
 from model.base import BRDF
 from model.fit.samples import Samples
 from model.fit.select import Candidate, Selection
+from model.fit.solve import FitResult
 from model.fit.spec import FitSpec
 
 Log = Callable[[str], None]
+
+#: Below this p-value residuals are not called "at the noise", whatever the 3-sigma test of chi2/dof says.
+P_AT_NOISE = 0.05
+#: Above this p-value chi2 is suspiciously small: the std errors are probably overestimated.
+P_TOO_GOOD = 0.999
+#: How an Analysis renders in Jupyter; analysis.report_notebook registers its renderer here (the page's pieces sit
+#: above this module, so they cannot be imported from it).
+HTML_REPR: list[Callable[[Any], str]] = []
+
+
+def noise_words(r: FitResult) -> str:
+    """How the residuals compare with the noise, in words that agree with the p-value printed beside them.
+
+    The selection's test (chi2/dof within 3 sigma of 1, ``FitResult.noise_reached``) accepts fits with p down to
+    about 0.003; calling those "at the noise" beside p = 0.0147 reads as a contradiction, so they are "slightly
+    above the noise" here (the choice itself is unchanged).
+    """
+    p = r.p_value
+    if p != p:  # NaN: no degrees of freedom
+        return "untested (no degrees of freedom)"
+    if p > P_TOO_GOOD:
+        return f"below the noise (p = {p:.3g}: the std errors look overestimated)"
+    if p >= P_AT_NOISE:
+        return f"at the noise (p = {p:.3g})"
+    if r.noise_reached:
+        return f"slightly above the noise (p = {p:.3g})"
+    return f"above the noise (p = {p:.2g})"
 
 
 class AnalysisError(ValueError):
@@ -113,6 +142,27 @@ class Analysis:
     def verdict(self) -> str:
         """One line: the chosen model, its chi2/dof and whether the residuals reach the noise."""
         r = self.selection.chosen
-        noise = "at the noise" if r.noise_reached else "above the noise"
         return (f"chosen: {r.spec} ({type(r.model).__name__}, {r.n_params} parameters), chi2/dof = "
-                f"{r.reduced_chi2:.3g} ({noise}) on {r.n_samples} samples")  # fmt: skip
+                f"{r.reduced_chi2:.3g}, residuals {noise_words(r)} on {r.n_samples} samples")  # fmt: skip
+
+    def _repr_html_(self) -> str:
+        """Jupyter's display: the verdict, parameters, selection and key figures (plain text if none registered)."""
+        if HTML_REPR:
+            return HTML_REPR[0](self)
+        from html import escape
+
+        return f"<pre>{escape(self.text())}</pre>"
+
+    def text(self) -> str:
+        """What ``gonio analyze`` prints: the verdict, then each parameter of the chosen model and what pins it."""
+        r = self.selection.chosen
+        status = parameter_status(r, self.spec(r.spec), self.samples.channels)
+        width = max(len(p.name) for p in status)
+        lines = [self.verdict()]
+        for p in status:
+            note = p.note()
+            lines.append(f"  {p.name:>{width}} = {p.value_text()}" + (f"  [{note}]" if note else ""))
+        problem = undetermined_text(status)
+        if problem:
+            lines.append(problem)
+        return "\n".join(lines)

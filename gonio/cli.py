@@ -15,7 +15,16 @@ from gonio.cli_errors import EXIT_CODES_HELP, GonioParser, quiet_broken_pipe, re
 from gonio.cli_run import EXIT_OK, add_run_parsers
 from gonio.cli_servo import add_servo_parser
 from gonio.cli_sim import add_sim_parser
-from model.version import gonio_version
+
+
+class _Version(argparse.Action):
+    """``--version``: the version is looked up when asked for (model's package is slow to import)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: object) -> None:
+        from model.version import gonio_version
+
+        print(f"gonio {gonio_version()}")
+        parser.exit()
 
 
 def _models(args: argparse.Namespace) -> int:
@@ -35,7 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Drive, simulate and analyse a gonioreflectometer.",
         epilog=f"Example: gonio demo --out out/demo. {EXIT_CODES_HELP}",
     )
-    parser.add_argument("--version", action="version", version=f"gonio {gonio_version()}")
+    parser.add_argument("--version", action=_Version, nargs=0, help="print gonio's version and exit")
     parser.add_argument("--debug", action="store_true", help="print the whole traceback of any error")
     # Every subcommand's parser is a GonioParser too (argparse makes them of the parent's class).
     sub = cast("argparse._SubParsersAction[argparse.ArgumentParser]",

@@ -22,8 +22,10 @@ def _metadata(pairs: list[str] | None) -> dict[str, str]:
 
 
 def _adaptive(args: argparse.Namespace) -> int:
+    from tqdm.auto import tqdm
+
     from analysis.ladder import parse_models
-    from rig.run.adaptive import AdaptiveSettings, run_adaptive
+    from rig.run.adaptive import AdaptiveSettings, Round, run_adaptive
     from rig.run.runner import RunStopped
 
     if args.resume:
@@ -42,9 +44,20 @@ def _adaptive(args: argparse.Namespace) -> int:
         raise CliError(str(exc)) from None
     rig = _rig(args.rig)
     print(f"adaptive sweep into {args.out}: {settings.budget} captures, model {args.model}", file=sys.stderr)
+    # A bar over the captures (rounds differ in size), its ETA from the rounds done; round lines print above it.
+    bar = tqdm(total=settings.budget, desc="adaptive", unit="capture", disable=args.quiet, dynamic_ncols=True)
+
+    def on_round(rnd: Round) -> None:
+        bar.update(rnd.captures - bar.n)
+        bar.set_postfix_str(f"round {rnd.index}", refresh=True)
+
+    def say(line: str) -> None:
+        tqdm.write(line, file=sys.stderr)
+
     try:
-        with _sigterm_as_interrupt():
-            result = run_adaptive(rig, Path(args.out), spec, settings, metadata=_metadata(args.metadata))
+        with _sigterm_as_interrupt(), bar:
+            result = run_adaptive(rig, Path(args.out), spec, settings, metadata=_metadata(args.metadata),
+                                  on_round=on_round, log=say)  # fmt: skip
     except RunStopped as exc:
         return _stopped(exc)
     return _summary(result)
@@ -82,4 +95,5 @@ def add_adaptive_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]
                    help="what the sweep is about (sample=..., operator=..., notes=..., or a key of your own; "
                    "repeat for more), laid over the rig file's [metadata]: into every round, the tables and the "
                    "report")  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_adaptive)

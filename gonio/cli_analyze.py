@@ -16,6 +16,7 @@ directory holding other files, not an analysis, gets the report written into it,
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -77,17 +78,19 @@ def _analyze(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else default_out(args.source)
     whole = _whole(out, args.force)  # before the fit: a refusal should not cost minutes
     a = load_and_fit(args.source, models=models, loss=args.loss, starts=args.starts, samples=args.samples,
-                     seed=args.seed, compare=args.compare, log=log, errors=args.errors)  # fmt: skip
+                     seed=args.seed, compare=args.compare, log=log, errors=args.errors,
+                     progress=not args.quiet)  # fmt: skip
+    options = {"y_scale": args.y_scale, "merl": args.merl, "mitsuba_plugin": args.mitsuba_plugin, "svg": args.svg,
+               "progress": not args.quiet, "jobs": args.jobs}  # fmt: skip
     if not whole:
-        page = write_report(a, out, y_scale=args.y_scale, merl=args.merl, log=log, mitsuba_plugin=args.mitsuba_plugin)
+        page = write_report(a, out, log=log, **options)
     else:
         with staged_dir(out) as tmp:
             # The progress lines name where the files will be, not the temporary directory they are written in.
             shown = None if log is None else (lambda line: stderr_log(line.replace(str(tmp), str(out))))
-            page = out / write_report(a, tmp, y_scale=args.y_scale, merl=args.merl, log=shown,
-                                          mitsuba_plugin=args.mitsuba_plugin).relative_to(tmp)
+            page = out / write_report(a, tmp, log=shown, **options).relative_to(tmp)
     print(page)
-    print(a.verdict())
+    print(a.text())
     return EXIT_OK
 
 
@@ -109,6 +112,8 @@ def add_analyze_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser])
                    help="replace an existing analysis in the report directory (without it gonio analyze refuses)")
     add_fit_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--jobs", type=_positive, default=min(os.cpu_count() or 1, 4),
+                   help="processes drawing the figures side by side (default: the cores, at most 4; 1: none)")
     p.set_defaults(func=_analyze)
 
 
@@ -132,3 +137,5 @@ def add_fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mitsuba-plugin", action="store_true",
                    help="also export the exact model for gonio's Mitsuba plugin (export/mitsuba_gonio_plugin.xml; "
                    "renders only where gonio is installed) when the stock-Mitsuba export is a projection")  # fmt: skip
+    p.add_argument("--svg", action="store_true", help="also write every figure as SVG beside its PNG (slower; the "
+                   "page links each PNG to its SVG)")  # fmt: skip

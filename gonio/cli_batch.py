@@ -44,7 +44,7 @@ def _batch_analyze(args: argparse.Namespace) -> int:
 
     settings = AnalyzeSettings(models=args.models, loss=args.loss, starts=args.starts, samples=args.samples,
                                seed=args.seed, compare=args.compare, y_scale=args.y_scale, merl=args.merl,
-                               errors=args.errors)  # fmt: skip
+                               errors=args.errors, svg=args.svg)  # fmt: skip
     result = batch_analyze(args.sources, args.out, settings, cluster=_cluster(args), progress=not args.quiet,
                            log=_log(args.quiet))  # fmt: skip
     print(result.catalogue)

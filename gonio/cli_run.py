@@ -16,16 +16,22 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 # Re-exported: the exit codes have always been importable from here (see docs/architecture.md).
 from gonio.cli_errors import EXIT_BAD_INPUT as EXIT_BAD_INPUT
 from gonio.cli_errors import EXIT_CAMERA, EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_OK
-from rig.run.config import RigConfig, load_rig, load_sweep, rig_config
-from rig.run.config_schema import RigFile
+
+if TYPE_CHECKING:
+    from rig.run.config import RigConfig
 
 
 def _rig(path: str | None) -> RigConfig:
+    # Imported here, not at the top: the configuration's schema (pydantic) costs most of a second, and
+    # `gonio --help` or `gonio analyze` need none of it.
+    from rig.run.config import load_rig, rig_config
+    from rig.run.config_schema import RigFile
+
     return load_rig(path) if path else rig_config(RigFile(), "<built-in simulated rig>")
 
 
@@ -67,6 +73,7 @@ def _default_out(sweep: str) -> Path:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from rig.run.config import load_sweep
     from rig.run.runner import RunStopped
     from rig.run.session import start_run
 
@@ -126,6 +133,7 @@ def _resume(args: argparse.Namespace) -> int:
 
 
 def _plan(args: argparse.Namespace) -> int:
+    from rig.run.config import load_sweep
     from rig.run.session import make_plan
 
     rig, sweep = _rig(args.rig), load_sweep(args.sweep)

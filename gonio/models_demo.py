@@ -15,7 +15,6 @@ import numpy as np
 import model as m
 from model.base import BRDF
 from model.checks import check_energy, check_reciprocity, check_sanity
-from model.geometry import degrees_to_vector
 
 
 @dataclass(frozen=True)
@@ -44,9 +43,11 @@ THETA_I_DEG = (0.0, 30.0, 60.0)
 
 
 def in_plane_slice(brdf: BRDF, theta_i_deg: float, theta_o_deg: np.ndarray) -> np.ndarray:
-    """f_r in 1/sr along the plane of incidence; negative theta_o means the forward (mirror) side."""
-    wi = degrees_to_vector(theta_i_deg, 0.0)
-    wo = degrees_to_vector(np.abs(theta_o_deg), np.where(theta_o_deg < 0, 180.0, 0.0))
+    """f_r in 1/sr along the plane of incidence; signed theta_o > 0 is forward of the light (the mirror side),
+    as in the sweep files and the analysis report (analysis.report_plots.in_plane_directions)."""
+    from analysis.report_plots import in_plane_directions
+
+    wi, wo = in_plane_directions(theta_i_deg, theta_o_deg)
     f = np.asarray(brdf.eval(wi, wo), dtype=float)
     return f if f.ndim == 2 else np.repeat(f[:, None], 3, axis=1)
 
@@ -71,7 +72,7 @@ def write_slices(out_dir: Path, materials: tuple[Material, ...] = DEMO_MATERIALS
             rows += [[mat.name, t_i, to, *fo] for to, fo in zip(theta_o, f, strict=True)]
         ax.axvline(0.0, color="0.8", lw=0.8)
         ax.set_title(mat.name, fontsize=10)
-        ax.set_xlabel("theta_o in the plane of incidence (deg; < 0 is the mirror side)")
+        ax.set_xlabel("signed θo in the plane of incidence (deg; > 0 forward of the light, the mirror side)")
         ax.set_ylabel("f_r (1/sr), R/G/B")
         ax.set_ylim(1e-3, None)
         ax.legend(fontsize=8)

@@ -95,7 +95,7 @@ def analyze_input(
         fitted = time.perf_counter()
         final = root / inp.key
         with staged_dir(final) as tmp:
-            write_report(a, tmp, y_scale=settings.y_scale, merl=settings.merl)
+            write_report(a, tmp, y_scale=settings.y_scale, merl=settings.merl, svg=settings.svg)
             if probe is not None:
                 probe(inp.key, "written")
         record |= {"status": "done", "error": None, "outputs": _outputs(final, root),

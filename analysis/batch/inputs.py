@@ -43,6 +43,7 @@ class AnalyzeSettings:
     y_scale: str = "auto"
     merl: bool = False
     errors: str = "total"
+    svg: bool = False
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form (batch.json, fingerprints)."""

@@ -171,6 +171,30 @@ class Plan:
         lines.extend(f"  {name:<11}{format_duration(value):>14}{note}" for name, value, note in parts)
         return "\n".join(lines)
 
+    def _repr_html_(self) -> str:
+        """Jupyter's display: the summary, and the outgoing directions to measure and those unreachable."""
+        from html import escape
+
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+        from model.notebook import figure_img
+
+        fig = Figure(figsize=(4.0, 4.0), layout="tight")
+        FigureCanvasAgg(fig)
+        ax = fig.add_subplot(aspect="equal")
+        for rows, marker, colour, label in (([p.directions_deg for p in self.points], "o", "#0072B2", "to measure"),
+                                            ([s.directions_deg for s in self.skipped], "x", "#D55E00",
+                                             "unreachable")):  # fmt: skip
+            if rows:
+                d = np.radians(np.asarray(rows, dtype=np.float64).reshape(len(rows), -1))
+                rho, phi = np.sin(d[:, 2]), d[:, 3] - d[:, 1]  # theta_o, phi_o relative to the light's azimuth
+                ax.scatter(rho * np.cos(phi), rho * np.sin(phi), s=14, marker=marker, color=colour, label=label)
+        ax.set(xlim=(-1.05, 1.05), ylim=(-1.05, 1.05), xlabel="sin θo cos(φo − φi)", ylabel="sin θo sin(φo − φi)",
+               title="outgoing directions")  # fmt: skip
+        ax.legend(fontsize=7, loc="upper right")
+        return f"<div><pre>{escape(self.summary())}</pre>{figure_img(fig)}</div>"
+
 
 # ----------------------------------------------------------------------------------------------------------
 # Move times

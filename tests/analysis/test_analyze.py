@@ -28,8 +28,9 @@ from rig.run.session import start_run
 from tests.run_helpers import GOLD, in_plane_sweep, sim_rig
 
 PNG = b"\x89PNG\r\n\x1a\n"
-FIGURES = ("slices", "polar", "residuals", "coverage")
-RUN_FIGURES = (*FIGURES, "uncertainty")  # a run's points carry their angles' errors: the z-scores' figure too
+FIGURES = ("slices", "polar", "residuals", "coverage", "uncertainty")
+# A simulated run's report also compares the fit with the true material.
+RUN_FIGURES = (*FIGURES, "truth")
 THETA_O = [-70.0, -50.0, -30.0, -10.0, 0.0, 10.0, 30.0, 50.0, 70.0]
 PLASTIC = CookTorrance(alpha=0.2, fresnel="dielectric", eta=1.5, rho_d=(0.2, 0.3, 0.4))
 
@@ -50,7 +51,7 @@ def gold_report(gold_run: Path) -> tuple[Analysis, Path]:
     """
     lines: list[str] = []
     ladder = "lambert,lambert_ggx_schlick,ggx_conductor"
-    page = analyze(gold_run, models=parse_models(ladder), log=lines.append)
+    page = analyze(gold_run, models=parse_models(ladder), log=lines.append, svg=True)
     assert any(line.startswith("fitting ggx_conductor (7 parameters)") for line in lines), lines
     assert f"wrote {gold_run / 'analysis' / 'fit.json'}" in lines
     return load_and_fit(gold_run, models=parse_models(ladder)), page
@@ -174,7 +175,8 @@ def test_the_same_inputs_give_the_same_bytes(gold_report: tuple[Analysis, Path],
     # A batch must never be a different analysis: everything gonio analyze writes depends on the inputs alone
     # (no wall-clock fit times, no dates or random ids in the SVGs).
     _, page = gold_report
-    again = analyze(gold_run, tmp_path / "again", models=parse_models("lambert,lambert_ggx_schlick,ggx_conductor"))
+    again = analyze(gold_run, tmp_path / "again", models=parse_models("lambert,lambert_ggx_schlick,ggx_conductor"),
+                    svg=True)
     names = same_files(page.parent, again.parent)
     assert {"fit.json", "index.html", "figures/slices.svg", "export/material.json"} <= set(names)
     assert all(c["time_s"] is None for c in fit_doc(again.parent)["candidates"])

@@ -30,7 +30,8 @@ from tests.run_helpers import GOLD, in_plane_sweep, sim_rig
 pytestmark = [pytest.mark.mitsuba, pytest.mark.slow]
 
 MODELS, STARTS, MERL_SAMPLES = "lambert,ggx_conductor", 2, 400
-SETTINGS = AnalyzeSettings(models=MODELS, starts=STARTS, samples=MERL_SAMPLES)
+# With SVGs: their ids and metadata are where a batch could most easily differ from gonio analyze.
+SETTINGS = AnalyzeSettings(models=MODELS, starts=STARTS, samples=MERL_SAMPLES, svg=True)
 ORDER = ("gold", "corrupt", "paint")
 #: Generous: a loaded CI host may be 10x slower than a quiet one; nothing here waits this long when things work.
 TIMEOUT_S = 600.0
@@ -56,7 +57,8 @@ def serial(inputs: dict[str, Path], tmp_path_factory: pytest.TempPathFactory) ->
     d = tmp_path_factory.mktemp("serial")
     for key in ("gold", "paint"):
         extra = ["--samples", str(MERL_SAMPLES)] if key == "paint" else []
-        argv = ["analyze", str(inputs[key]), "--out", str(d / key), "--models", MODELS, "--starts", str(STARTS)]
+        argv = ["analyze", str(inputs[key]), "--out", str(d / key), "--models", MODELS, "--starts", str(STARTS),
+                "--svg"]
         assert cli.main([*argv, *extra, "--quiet"]) == 0
     return {key: d / key for key in ("gold", "paint")}
 
@@ -151,7 +153,7 @@ def test_the_command_runs_on_an_existing_scheduler_and_shows_progress(cluster: A
     out = tmp_path / "cli"
     shutil.copytree(first[1], out)  # a batch directory moves whole: its records and relative paths still hold
     argv = ["batch", "analyze", str(inputs["gold"]), str(inputs["corrupt"]), "--out", str(out), "--models", MODELS,
-            "--starts", str(STARTS), "--samples", str(MERL_SAMPLES),
+            "--starts", str(STARTS), "--samples", str(MERL_SAMPLES), "--svg",
             "--scheduler", cluster.scheduler.address]  # fmt: skip
     code = cli.main(argv)
     captured = capsys.readouterr()

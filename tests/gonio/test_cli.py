@@ -1,4 +1,5 @@
 import csv
+import re
 
 import numpy as np
 import pytest
@@ -22,9 +23,24 @@ def test_models_writes_figure_and_table(tmp_path, capsys):
 
 
 def test_slice_peaks_at_the_mirror_direction():
+    # One sign convention everywhere: signed theta_o > 0 is forward of the light, where the mirror direction lies.
     theta_o = np.linspace(-89.0, 89.0, 357)
     f = in_plane_slice(m.CookTorrance(alpha=0.05, eta=1.5, fresnel="dielectric"), 40.0, theta_o)
-    assert theta_o[np.argmax(f[:, 0])] == -40.0
+    assert theta_o[np.argmax(f[:, 0])] == 40.0
+
+
+def test_gonio_models_the_report_and_the_sweep_files_share_the_theta_o_sign():
+    from analysis.report_plots import angles_of, in_plane_directions
+    from model.geometry import degrees_to_vector
+    from rig.run.sweeps import in_plane
+
+    signed = np.array([-60.0, -20.0, 20.0, 60.0])
+    wi, wo = in_plane_directions(35.0, signed)
+    rows = in_plane([35.0], signed.tolist())  # a sweep file's in-plane slice: theta_i, phi_i, theta_o, phi_o
+    np.testing.assert_allclose(wo, degrees_to_vector(rows[:, 2], rows[:, 3]), atol=1e-12)
+    np.testing.assert_allclose(angles_of(np.broadcast_to(wi, wo.shape), wo).signed_theta_o, signed, atol=1e-9)
+    brdf = m.CookTorrance(alpha=0.05, eta=1.5, fresnel="dielectric")
+    np.testing.assert_allclose(in_plane_slice(brdf, 35.0, signed)[:, 0], brdf.eval(wi, wo), rtol=1e-12)
 
 
 COMMANDS = [["demo"], ["models"], ["run"], ["plan"], ["resume"], ["servo", "scan"], ["servo", "ping"],
@@ -103,3 +119,29 @@ def test_adaptive_metadata_options_and_their_mistakes(capsys: pytest.CaptureFixt
     assert "--metadata 'sample': expected KEY=VALUE" in capsys.readouterr().err
     assert cli.main(["adaptive", "--metadata", "sample=x"]) == 2  # neither --out nor --resume
     assert "--out DIR is required (or --resume DIR" in capsys.readouterr().err
+
+
+def test_gonio_adaptive_shows_its_rounds_on_a_bar_with_an_eta(monkeypatch, tmp_path, capsys):
+    # The rounds themselves are run_adaptive's (tests/rig/run/test_adaptive.py); here: the command's bar over them.
+    from pathlib import Path
+
+    import rig.run.adaptive as adaptive
+    from model.fit.solve import fit
+    from model.fit.spec import LAMBERT
+    from tests.analysis.test_report_honesty import GOLD, in_plane
+
+    r = fit(LAMBERT, in_plane(GOLD), starts=1, warn=False)
+
+    def rounds(rig, out, spec, settings, *, on_round=None, log=None, **_):
+        result = adaptive.AdaptiveResult()
+        for i, captures in enumerate((8, 12)):
+            log(f"round {i}: {captures} captures")
+            rnd = adaptive.Round(i, captures, 60.0, r, 0.1, Path(out) / f"round-{i:02d}")
+            result.rounds.append(rnd)
+            on_round(rnd)
+        return result
+
+    monkeypatch.setattr(adaptive, "run_adaptive", rounds)
+    assert cli.main(["adaptive", "--out", str(tmp_path / "a"), "--budget", "12", "--initial", "8", "--batch", "4"]) == 0
+    err = capsys.readouterr().err
+    assert "round 1: 12 captures" in err and re.search(r"adaptive: +\d+%.*12/12 \[[0-9:]+<[0-9:?]+", err), err
