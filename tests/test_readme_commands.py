@@ -53,6 +53,10 @@ HOW: dict[str, tuple[str, str]] = {
     ".venv/bin/gonio analyze paint.binary --samples 20000": ("run", ""),  # ~30 s of CPU: the MERL path as written
     ".venv/bin/gonio adaptive --rig examples/rig_simulated.toml --out runs/gold-adaptive --budget 100":
         ("dry", "100 captures in 9 rounds, ~35 s; tests/gonio/test_cli.py runs a budget of 12"),
+    ".venv/bin/gonio adaptive --resume runs/gold-adaptive":
+        ("dry", "continues the adaptive sweep above, which is not run; tests/rig/run/test_adaptive.py resumes one"),
+    ".venv/bin/gonio analyze runs/gold-adaptive":
+        ("dry", "analyses the adaptive sweep above, which is not run; tests/analysis/test_sources.py analyses one"),
     ".venv/bin/gonio batch analyze runs/gold paint.binary --out batch/june --models lambert,lambert_ggx,ggx_conductor":
         ("dry", "a local Dask cluster and two analyses, a minute; tests/analysis/test_batch.py runs batches"),
     ".venv/bin/gonio batch study --out studies/tradeoff --seeds 5":

@@ -203,7 +203,7 @@ def calibrate_geometry(
         raise CalibrationError(
             f"the lamp's highlight was in view in only {found} of {len(mirrors)} mirror captures ({'; '.join(notes)}): "
             "the rig is misaligned beyond what the planned poses can catch (the light arm's zero, most likely, by "
-            f"more than about {0.5 * rig.geometry.camera_fov_deg:g} deg); check the arms' zeros by eye and run again"
+            "several degrees); check the arms' zeros by eye and run again"
         )
     fit = fit_geometry(rig.geometry, caps, board.corners_local_m(), _focal(rig, hdrs[0]), _size(hdrs[0]),
                        start=first.alignment, alpha=alpha)  # fmt: skip

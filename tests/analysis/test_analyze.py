@@ -273,7 +273,7 @@ def test_a_run_with_too_few_points_names_the_run_and_the_fit_error(gold_run: Pat
     err = capsys.readouterr().err
     assert f"{run}: cannot fit" in err and "no candidate could be fitted" in err and "cannot determine" in err
     assert not (run / "analysis").exists()
-    assert cli.main(["analyze", str(gold_run), "--samples", "100", "--quiet"]) == 2
+    assert cli.main(["analyze", str(gold_run), "--samples", "100", "--out", str(tmp_path / "other"), "--quiet"]) == 2
     assert "only a MERL source is subsampled" in capsys.readouterr().err
 
 

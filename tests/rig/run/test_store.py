@@ -78,7 +78,7 @@ def test_create_writes_manifest_journal_and_lock(tmp_path: Path) -> None:
 
 
 def test_create_refuses_a_run_or_a_non_empty_directory(run: Path, tmp_path: Path) -> None:
-    with pytest.raises(RunStoreError, match=r"already holds a run.*RunStore\.open") as exc:
+    with pytest.raises(RunStoreError, match=r"already holds a run.*gonio resume") as exc:
         RunStore.create(run, MANIFEST)
     assert str(run) in str(exc.value)
     other = tmp_path / "other"
