@@ -19,6 +19,10 @@ start pose through every point: greedy nearest neighbour, then 2-opt and Or-opt 
 whole move-time matrix up to 1000 points) until no move improves it; deterministic, and never worse than
 the order the sweep was generated in. Reference captures are placed after ordering and are not
 considered by it.
+
+One file past 400 lines on purpose: reachability, ordering and the estimate share the plan's arrays;
+what stands alone (ordering, swept paths, the calibrated joints) is in plan_order.py, plan_paths.py and
+plan_alignment.py.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The run store: one directory per run (DESIGN.md, "The run store").
+"""The run store: one directory per run (docs/architecture.md describes its place in a run).
 
 A run directory holds manifest.json (the caller's manifest plus "format", "created_utc", "gonio_version"),
 journal.jsonl (append-only, one JSON object with a "kind" per line), lock (flock()ed by the one writer; its
@@ -10,6 +10,9 @@ its directory is fsynced so the rename survives a power loss. A SIGKILL during a
 last line: open() cuts it off (that point is measured again); a bad line anywhere else is corruption.
 NaN and inf are refused with an error naming the key: JSON cannot spell them, and a missing value should
 be None on purpose, not produced by accident.
+
+One file past 400 lines on purpose: creation, locking, the journal's appends and the status are one
+crash-safety story that reads best in one place; the formats it writes are in store_formats.py.
 """
 
 from __future__ import annotations

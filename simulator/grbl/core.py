@@ -4,6 +4,9 @@
 ``simulator.grbl.controller.VirtualGrbl`` adds the ``$`` commands, homing and fault injection. Positions are in
 controller units (GRBL's millimetres; the gonio uses motor degrees), times in seconds of the clock, feeds in
 units/min. See ``simulator/grbl/controller.py`` for what is modelled and what is simplified.
+
+One file past 400 lines on purpose: GRBL's line protocol, real-time bytes and state machine act on one
+shared state; G-code parsing, settings and motion are in gcode.py, settings.py and motion.py.
 """
 
 from __future__ import annotations

@@ -15,6 +15,9 @@ Slow hosts. The SDK's reply timeout (transmit time + 2 x latency timer + 2 ms) i
 a loaded one can deliver a reply later. A lost reply is therefore retried with the timeout doubled each time,
 for at least ``reply_patience_s`` of wall time, so a slow host waits longer instead of reporting a dead servo.
 A port that fails at the OS level (EIO: cable or adapter pulled) is a ``LinkError``, never a bare OSError.
+
+One file past 400 lines on purpose: the SDK's port handler, its lock, the interrupt recovery and the
+blocking reads are one ownership of the port; splitting them would spread the busy-flag invariant.
 """
 
 from __future__ import annotations

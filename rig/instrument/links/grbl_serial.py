@@ -8,6 +8,9 @@ polls with ``?`` every ``poll_interval_s`` of the injected clock, so a client an
 Streaming counts the bytes (line + LF) sent and not yet answered by ``ok``/``error:N`` and never lets them exceed
 GRBL's 128-byte receive buffer (or what ``[OPT:...]`` reports), so nothing is ever dropped however many lines are
 queued. Real-time bytes (``?`` ``!`` ``~`` 0x18) bypass the buffer and are not counted.
+
+One file past 400 lines on purpose: the handshake, character counting, polling and reset handling share
+the session's receive buffer state.
 """
 
 from __future__ import annotations
