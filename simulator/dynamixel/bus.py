@@ -43,6 +43,7 @@ from simulator.dynamixel import instructions
 from simulator.dynamixel.faults import ReplyFate
 from simulator.dynamixel.protocol import PacketParser, crc16
 from simulator.dynamixel.servo import VirtualServo
+from simulator.settling import Settling
 
 BAUD_TOLERANCE = 0.03
 """Relative baud mismatch a UART tolerates (e-Manual: under 3 % does not affect communication)."""
@@ -57,7 +58,6 @@ _TERMIOS_SPEEDS = {
 _POLL_S = 0.05
 _WRITE_TIMEOUT_S = 0.5
 #: Wall seconds a settling clock waits for the serving thread before moving on regardless (a dead thread).
-_SETTLE_TIMEOUT_S = 60.0
 
 
 @dataclass
@@ -72,7 +72,7 @@ class BusStats:
     replies_corrupted: int = 0
 
 
-class VirtualDynamixelBus:
+class VirtualDynamixelBus(Settling):
     """A set of virtual XM430-W350 servos answering Protocol 2.0 on a pseudo-terminal.
 
     Parameters
@@ -132,13 +132,8 @@ class VirtualDynamixelBus:
         self._parser = PacketParser()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._idle = threading.Condition()
-        self._handling = False  # the serving thread has input in hand (read or about to be)
-        self._running = threading.Event()  # cleared by pause(): the thread holds before reading
-        self._running.set()
+        self._init_settling()
         self._unsettle: Callable[[], None] | None = None
-        #: Clock advances now waiting for this bus to handle what it was sent (for tests of a paused bus).
-        self.settling = 0
         self._master = -1
         self._slave = -1
         self._wake_r = self._wake_w = -1
@@ -243,27 +238,8 @@ class VirtualDynamixelBus:
 
     # --- settling -------------------------------------------------------------------------------------
 
-    def pause(self) -> None:
-        """Hold the serving thread before it reads its next input: a host too busy to run it (for tests)."""
-        self._running.clear()
-
-    def resume(self) -> None:
-        """Let a paused serving thread go on."""
-        self._running.set()
-
-    def settle(self) -> None:
-        """Return once every byte written to the bus is handled (its replies written); see the module docstring."""
-        deadline = time.monotonic() + _SETTLE_TIMEOUT_S
-        with self._idle:
-            self.settling += 1
-            try:
-                while self.running and (self._handling or self._input_waiting()):
-                    left = deadline - time.monotonic()
-                    if left <= 0.0:
-                        return  # a thread that never gets there must not hang the simulation too
-                    self._idle.wait(min(left, _POLL_S))
-            finally:
-                self.settling -= 1
+    def _serving(self) -> bool:
+        return self.running
 
     def _input_waiting(self) -> bool:
         try:

@@ -30,12 +30,12 @@ import select
 import struct
 import termios
 import threading
-import time
 import tty
 from collections.abc import Callable, Iterator, Mapping
 
 from rig.instrument.clock import Clock
 from simulator.grbl.controller import VirtualGrbl
+from simulator.settling import Settling
 
 log = logging.getLogger(__name__)
 
@@ -43,10 +43,9 @@ __all__ = ["GrblPtyServer", "VirtualGrbl", "open_virtual_grbl", "serve_grbl"]
 
 _TIOCPKT_FLUSHREAD = 0x01
 _MAX_PENDING_OUTPUT = 1 << 16  # bytes kept for a client that stopped reading; older output is dropped
-_SETTLE_TIMEOUT_S = 60.0  # wall seconds a settling clock waits for the serving thread (a dead one) at most
 
 
-class GrblPtyServer:
+class GrblPtyServer(Settling):
     """Serves one ``VirtualGrbl`` on a new pseudo-terminal; ``port`` is the path clients open."""
 
     def __init__(
@@ -69,12 +68,7 @@ class GrblPtyServer:
         self._hung_up = True
         self.opens = 0  # how many times a client opened the port (each one resets the controller)
         self.error: Exception | None = None  # what stopped the serving thread, if it crashed
-        self._idle = threading.Condition()
-        self._handling = False  # the serving thread has client input in hand
-        self._running = threading.Event()  # cleared by pause(): the thread holds before reading
-        self._running.set()
-        #: Clock advances now waiting for this server to handle what it was sent (for tests of a paused one).
-        self.settling = 0
+        self._init_settling()
         add_settler = getattr(controller.clock, "add_settler", None)
         self._unsettle: Callable[[], None] | None = add_settler(self.settle) if add_settler is not None else None
 
@@ -132,27 +126,11 @@ class GrblPtyServer:
                     self._handling = False
                     self._idle.notify_all()
 
-    def pause(self) -> None:
-        """Hold the serving thread before it reads its next input: a host too busy to run it (for tests)."""
-        self._running.clear()
+    def _serving(self) -> bool:
+        return self._alive()
 
-    def resume(self) -> None:
-        """Let a paused serving thread go on."""
-        self._running.set()
-
-    def settle(self) -> None:
-        """Return once every byte a client wrote is handled and answered; see the module docstring."""
-        deadline = time.monotonic() + _SETTLE_TIMEOUT_S
-        with self._idle:
-            self.settling += 1
-            try:
-                while self._alive() and (self._handling or self._input_waiting()):
-                    left = deadline - time.monotonic()
-                    if left <= 0.0:
-                        return  # a thread that never gets there must not hang the simulation too
-                    self._idle.wait(min(left, self._tick_ms / 1000.0))
-            finally:
-                self.settling -= 1
+    def _settle_poll_s(self) -> float:
+        return self._tick_ms / 1000.0
 
     def _alive(self) -> bool:
         return self._thread is not None and self._thread.is_alive() and not self._stop.is_set()
