@@ -220,7 +220,7 @@ In the bracket's frames longer than the metered one every ROI pixel clips and th
 {100 * res.wasted_fraction:.1f} % of its exposure time buys nothing, and its SNR comes from the metered
 frame and the three shorter ones. The planner reaches the same SNR with {frames} ({_frames_text(same)} s):
 {ratio:.1f}x less exposure time (goal: at least 20x) and {time_ratio:.1f}x less capture time with the
-{1e3 * OVERHEAD_S:.0f} ms overhead per frame. REFERENCE.md measured 22x on a scene spanning 5 decades; this
+{1e3 * OVERHEAD_S:.0f} ms overhead per frame. The published measurement is 22x on a scene spanning 5 decades; this
 ROI spans a factor of about 2, so the bracket's long frames are a total loss here.
 
 ### The planner's time per ROI SNR target

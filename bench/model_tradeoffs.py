@@ -53,7 +53,7 @@ METALS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]]
     "copper": ((0.217, 0.958, 1.166), (3.638, 2.577, 2.394)),
 }
 GLASS_ETA = 1.5
-# REFERENCE.md anchors: Schlick's maximum absolute error, and the GGX white-furnace albedo at
+# Published anchors: Schlick's maximum absolute error, and the GGX white-furnace albedo at
 # normal incidence with F = 1.
 REF_FRESNEL = {"glass": 0.04, "aluminium": 0.09, "chromium": 0.19}
 REF_FURNACE = {0.1: 0.99, 0.5: 0.69, 1.0: 0.31}

@@ -1,7 +1,7 @@
 """gonio.model: physically based reflectance models and the radiometry of one measurement.
 
 Pure functions and small frozen dataclasses over numpy arrays; no I/O beyond MERL files, no hardware.
-Conventions (see DESIGN.md): local frame with z the sample normal, both directions pointing away from
+Conventions (docs/architecture.md): local frame with z the sample normal, both directions pointing away from
 the surface, ``eval`` returns f_r in 1/sr without the cosine, radians inside and degrees at the user
 boundary, float64 by default and float32 accepted.
 """

@@ -116,7 +116,7 @@ class SanityReport:
 
 
 def extreme_pairs(dtype: npt.DTypeLike = np.float64) -> tuple[Array, Array]:
-    """Direction pairs at the numerical extremes DESIGN.md lists: grazing, equal, opposite, mirrored."""
+    """Direction pairs at the numerical extremes the project tests: grazing, equal, opposite, mirrored."""
     eps = [0.0, 1e-12, 1e-7, 1e-3]
     dirs = [np.array([np.sqrt(max(0.0, 1.0 - e * e)), 0.0, e]) for e in eps]
     dirs += [np.array([0.0, 0.0, 1.0]), np.array([0.6, 0.0, 0.8]), np.array([-0.6, 0.0, 0.8])]

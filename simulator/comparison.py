@@ -32,7 +32,7 @@ gap ``extended`` does not account for is ``grazing`` beyond ``grazing_deg``, els
 
 Exposure: ``exposures_s`` fixes the bracket, else each point is metered on its render (a camera's preview):
 the longest of ``frames`` frames ``stops`` EV apart puts the ROI's brightest pixel at ``meter_fraction``
-(80 %) of saturation; it sets the noise (REFERENCE.md), the shorter ones guard against a misjudged peak.
+(80 %) of saturation; it sets the noise, the shorter ones guard against a misjudged peak.
 """
 
 from __future__ import annotations

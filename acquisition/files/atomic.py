@@ -1,4 +1,4 @@
-"""Atomic file writes: nothing is ever partially written in place (DESIGN.md, the run store)."""
+"""Atomic file writes: nothing is ever partially written in place (docs/architecture.md, Conventions)."""
 
 from __future__ import annotations
 

@@ -39,7 +39,7 @@ RAW_EXTENSIONS = frozenset(
     ".fff .iiq .mos .mef .rwl .x3f .raw".split()
 )
 
-# Parameters that keep LibRaw's postprocess linear in the sensor counts (REFERENCE.md, HDR section):
+# Parameters that keep LibRaw's postprocess linear in the sensor counts:
 # no gamma, no auto brightness, unit white balance, camera colour space, and no "adjust maximum"
 # (its default 0.75 rescales any frame whose brightest pixel exceeds 75 % of the white level).
 # user_flip=0 keeps the output aligned with the mosaic's pixel grid.

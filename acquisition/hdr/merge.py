@@ -4,7 +4,7 @@ Estimator. A pixel read in frame ``k`` (exposure ``t_k`` seconds, gain ``g_k``) 
 ``y_k = s_k - dark_k`` has mean ``X * e_k`` with ``e_k = t_k * g_k`` and ``X`` the radiance in counts per
 second at gain 1. Over the frames where the pixel is not saturated the merge returns
 
-    X = sum(y_k) / sum(e_k)                        ("sum", the noise-optimal merge of REFERENCE.md),
+    X = sum(y_k) / sum(e_k)                        ("sum", noise-optimal for photon noise),
 
 which is the maximum-likelihood estimate when shot noise dominates (for Poisson counts the total count
 over the total exposure is sufficient). When read noise matters it is not: a short frame adds a full

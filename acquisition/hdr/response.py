@@ -9,7 +9,7 @@ first recovering the inverse response (code -> relative exposure, per channel) w
 
 OpenCV's results need our flags: a pixel saturated in every frame comes back as 0 from Robertson and as
 a plausible but wrong value from Debevec, and a pixel dark in every frame as 0 or a value set by
-quantisation alone, with nothing to tell them apart (REFERENCE.md). :func:`merge_8bit` flags, per pixel
+quantisation alone, with nothing to tell them apart. :func:`merge_8bit` flags, per pixel
 and channel, codes >= ``saturated_code`` in every frame (:attr:`HdrFlag.SATURATED`; the radiance is
 replaced by a lower bound, the shortest frame's code through the curve over its exposure, as the linear
 merge does) and codes <= ``dark_code`` in every frame (:attr:`HdrFlag.DARK`; OpenCV's value is kept).

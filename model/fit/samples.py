@@ -165,7 +165,7 @@ class Samples:
         lower = np.zeros(n, dtype=bool) if lower_bound is None else np.asarray(lower_bound, dtype=bool).reshape(n)
         with_cos = np.broadcast_to(np.asarray(includes_cosine, dtype=bool), (n,))
         # The calibration multiplies by cos(theta_i) when asked to include the cosine: undo it, since the
-        # models' eval excludes it (DESIGN.md). Below the horizon the row is dropped anyway.
+        # models' eval excludes it (docs/architecture.md, Conventions). Below the horizon the row is dropped anyway.
         cos_i = np.where(with_cos, np.maximum(wi[:, 2], 1e-300), 1.0)[:, None]
         v, se = v / cos_i, se / cos_i
         notes: list[str] = []

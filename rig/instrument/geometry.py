@@ -4,7 +4,7 @@ A ``RigGeometry`` is a frozen value: the kinematics (``rig.instrument.kinematics
 writes it. Lengths are metres and angles degrees, as in rig files. Every field is checked on
 construction; a bad value raises ``GeometryError`` naming the field, the value and the range expected.
 
-Layouts (see DESIGN.md, "The default rig"):
+Layouts:
 
 ``"four_axis"``
     Light arm and camera arm turn about one vertical axis through the sample centre; the sample stage

@@ -1,7 +1,7 @@
 """Sweeps: the lists of BRDF direction pairs a run measures, in degrees, before any rig is involved.
 
 Every generator returns a float64 array of shape (N, 4) with columns theta_i, phi_i, theta_o, phi_o in
-degrees (local frame, z = sample normal, both directions pointing away from the surface; DESIGN.md).
+degrees (local frame, z = sample normal, both directions pointing away from the surface; docs/architecture.md).
 Rows are *normalised* (phi in [0, 360); phi = 0 where theta = 0, since the azimuth of the pole is
 undefined; theta within 1e-9 of 0 or 90 snapped onto it) and *deduplicated*: rows whose four normalised
 angles all agree within ``DEDUPE_TOL_DEG`` are one point, and the first occurrence is kept, so the order

@@ -84,7 +84,7 @@ def test_flags_pixels_saturated_or_dark_in_every_frame(scene: np.ndarray) -> Non
     assert not img.flags[3:].any()
     # Saturated pixels carry a lower bound: the shortest frame's code through the curve over its exposure.
     assert np.allclose(img.radiance[0], curve.inverse[255] / EXPOSURES[0])
-    # What OpenCV gives there (REFERENCE.md): Robertson returns 0 where every code is 0 (kept, flagged).
+    # What OpenCV gives there: Robertson returns 0 where every code is 0 (kept, flagged).
     black_everywhere = np.all([f.data[1] == 0 for f in frames], axis=0)
     assert black_everywhere.sum() > 50
     assert np.all(img.radiance[1][black_everywhere] == 0.0)

@@ -84,7 +84,7 @@ models = st.one_of(
     st.builds(m.MetalRoughness, channel, unit, st.floats(1e-3, 1.0)),
 )
 
-# Cosines from exactly 0 through 1e-12 to 1, as DESIGN.md's extremes require.
+# Cosines from exactly 0 through 1e-12 to 1, as the project's extremes require.
 cosine = st.sampled_from([0.0, 5e-324, 1e-300, 1e-30, 1e-12, 1e-7, 1e-3, 1.0]) | st.floats(0.0, 1.0)
 
 

@@ -62,7 +62,7 @@ def test_smith_schlick_differs_from_exact_as_reference_says():
     c = np.linspace(1e-6, 1, 20001)
     err01 = np.max(np.abs(mf.smith_schlick_g1(c, 0.05) - mf.smith_g1(c, 0.1, "ggx")))
     err1 = np.max(np.abs(mf.smith_schlick_g1(c, 0.5) - mf.smith_g1(c, 1.0, "ggx")))
-    # REFERENCE.md: up to 0.14 at alpha 0.1, "exact at alpha 1" (within a few percent here).
+    # Published: up to 0.14 at alpha 0.1, "exact at alpha 1" (within a few percent here).
     assert 0.1 < err01 < 0.2
     assert err1 < 0.05
 
