@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> None:
         imports = _best([sys.executable, "-c", "import gonio.cli"], 3)[0]
         rows, md = [], []
         for case, (src, extra) in sources.items():
-            cmd = [str(GONIO), "analyze", str(src), "--out", str(tmp / f"out-{case}"), "--quiet", *extra]
+            cmd = [str(GONIO), "analyze", str(src), "--out", str(tmp / f"out-{case}"), "--quiet", "--force", *extra]
             _wall(cmd)  # warm-up: numba's disk cache, the page cache
             total, cpu = _best(cmd, args.repeats)
             samples = int(extra[1]) if extra else None
