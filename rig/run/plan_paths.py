@@ -21,6 +21,7 @@ split makes safe needs the arms to cross and is refused.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 
@@ -211,7 +212,7 @@ class ArmPaths:
         elif self.light is None:
             offset = self.held_light
         lo, hi = min(d0, d1), max(d0, d1)
-        for t0, t1 in zip(breaks[:-1], breaks[1:], strict=True):
+        for t0, t1 in itertools.pairwise(breaks):
             span = t1 - t0
             mid = t0 + 0.5 * span
             start = [(sgn, _state_one(p, t0)) for sgn, p in prof]

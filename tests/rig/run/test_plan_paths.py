@@ -224,6 +224,7 @@ def test_the_one_move_check_gives_the_vectorised_checks_numbers_and_decisions(la
             assert paths.clearance_one(src[i], dst[i]) == clearance[i], (names, src[i], dst[i])
             assert paths.safe_one(src[i], dst[i]) == bool(safe[i]), (names, src[i], dst[i])
             got, want = paths.legs(src[i], dst[i]), _oracle_legs(paths, src[i], dst[i])
-            assert (got is None) == (want is None) and (got is None or all(
-                np.array_equal(a, b) for a, b in zip(got, want or [], strict=True))), (names, src[i], dst[i])
+            assert (got is None) == (want is None) and (
+                got is None or all(np.array_equal(a, b) for a, b in zip(got, want or [], strict=True))
+            ), (names, src[i], dst[i])
         assert 0 < np.count_nonzero(safe) < len(safe)  # both decisions were exercised
