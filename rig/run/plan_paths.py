@@ -185,13 +185,13 @@ class ArmPaths:
         swept: FloatArray = np.where(crossing, 0.0, np.minimum(_wrapped(lo), _wrapped(hi)))
         return swept - MARGIN_DEG
 
-    def _difference_one(self, x: Sequence[float]) -> float:
+    def _difference_one(self, x: Sequence[float] | FloatArray) -> float:
         light = x[self.light] if self.light is not None else self.held_light
         if self.fixed is not None:
             return light - self.fixed
         return light - (x[self.camera] if self.camera is not None else self.held_camera)
 
-    def clearance_one(self, src: Sequence[float], dst: Sequence[float]) -> float:
+    def clearance_one(self, src: Sequence[float] | FloatArray, dst: Sequence[float] | FloatArray) -> float:
         """``clearance`` of the one move src -> dst (joint angles in deg), in Python floats: the same number."""
         src, dst = [float(v) for v in src], [float(v) for v in dst]
         d0, d1 = self._difference_one(src), self._difference_one(dst)
@@ -232,7 +232,7 @@ class ArmPaths:
         crossing = math.floor(hi / 360.0) * 360.0 >= lo
         return (0.0 if crossing else min(_wrapped_one(lo), _wrapped_one(hi))) - MARGIN_DEG
 
-    def safe_one(self, src: Sequence[float], dst: Sequence[float]) -> bool:
+    def safe_one(self, src: Sequence[float] | FloatArray, dst: Sequence[float] | FloatArray) -> bool:
         """``safe`` of the one move src -> dst (joint angles in deg), the same decision at a fraction of the cost."""
         if not self.active:
             return True
