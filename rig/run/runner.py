@@ -241,8 +241,9 @@ class Runner:
                 reading = self._point(pos, point, level)
                 level = reading.level
                 self.eta.point_done()
-                bar.set_postfix_str(f"{format_eta(self.eta.remaining_s())}, {self._postfix(point, reading)}",
-                                    refresh=False)  # fmt: skip
+                if self.options.progress:  # the bar's text, only where there is a bar to show it
+                    bar.set_postfix_str(f"{format_eta(self.eta.remaining_s())}, {self._postfix(point, reading)}",
+                                        refresh=False)  # fmt: skip
                 bar.update(1)
             end = len(self.plan.points)
             if end in slots and end not in ref_done:
