@@ -332,7 +332,7 @@ def _decide_weighting(
     Also returns the sample's sum pass when the sample is every pixel (a small image): the merge's own.
     """
     stride = max(1, prep.data[0].size // IV_SAMPLE)
-    sample = prep.subsample(stride)
+    sample = prep.subsample(stride) if stride > 1 else prep  # every pixel: the arrays as they are
     first = sample.run(False)
     _, var_sum, flags, _ = first
     # The inverse-variance prediction weights by the sum pass: the one just taken, not a second run of it.
