@@ -262,14 +262,13 @@ def _points(x: Array, y: Array) -> Any:
     return mi.Point2f(np.ascontiguousarray(x, dtype=np.float32), np.ascontiguousarray(y, dtype=np.float32))
 
 
-def _sample(warp: Any, nodes: tuple[Array, Array], params: tuple[float, float]) -> tuple[Array, Array]:
-    """Mitsuba's VNDF warp of the sample-grid nodes at one incidence: u_m (x, y)."""
-    x, y = nodes
+def _sample(warp: Any, x: Array, y: Array, phi: Array, theta: Array) -> tuple[Array, Array]:
+    """Mitsuba's VNDF warp of sample-square points (x, y) at incidences (phi, theta), per lane: u_m (x, y)."""
     if dr.is_jit_v(mi.Float):
-        p = mi.Vector2f(np.full(x.size, params[0], np.float32), np.full(x.size, params[1], np.float32))
-        u, _ = warp.sample(_points(x, y), p)
+        u, _ = warp.sample(_points(x, y), mi.Vector2f(_points(phi, theta)))
         return np.array(u.x, dtype=np.float64), np.array(u.y, dtype=np.float64)
-    out = [warp.sample(mi.Point2f(float(a), float(b)), mi.Vector2f(*params))[0] for a, b in zip(x, y, strict=True)]
+    out = [warp.sample(mi.Point2f(float(a), float(b)), mi.Vector2f(float(c), float(d)))[0]
+           for a, b, c, d in zip(x, y, phi.astype(np.float32), theta.astype(np.float32), strict=True)]  # fmt: skip
     return np.array([o[0] for o in out], dtype=np.float64), np.array([o[1] for o in out], dtype=np.float64)
 
 
@@ -300,7 +299,6 @@ def tabulate(model: BRDF, grid: TabulationGrid | None = None, *, variant: str | 
     s = grid.samples
     sx, sy = (a.ravel() for a in np.meshgrid(np.linspace(0.0, 1.0, s), np.linspace(0.0, 1.0, s)))
     vndf = np.empty((len(phi_i), len(theta_i), grid.ndf, grid.ndf), np.float32)
-    rgb = np.empty((len(phi_i), len(theta_i), 3, s, s), np.float32)
     ux, _ = sq.u
     jac = ux * np.sin(_u2theta(ux))
     f32 = np.float32
@@ -314,21 +312,21 @@ def tabulate(model: BRDF, grid: TabulationGrid | None = None, *, variant: str | 
         warp = mi.MarginalContinuous2D2(vndf, [phi_i.astype(f32).tolist(), theta_i.astype(f32).tolist()], True)
         ndf_table = mi.MarginalContinuous2D0(ndf32, normalize=False, enable_sampling=False)
         sigma_table = mi.MarginalContinuous2D0(sigma32, normalize=False, enable_sampling=False)
-        for p, phi in enumerate(phi_i):
-            for t, th in enumerate(theta_i):
-                ux_m, uy_m = _sample(warp, (sx, sy), (float(f32(phi)), float(f32(th))))
-                m = _sph(_u2theta(ux_m), _u2phi(uy_m) + (phi if reduction == 0 else 0.0))
-                view = _sph(np.full(len(m), min(th, THETA_EVAL_MAX)), np.full(len(m), phi))
-                light = 2.0 * np.sum(m * view, axis=1, keepdims=True) * m - view
-                cos_l = np.maximum(light[:, 2], 0.0)
-                lit = light.copy()
-                lit[:, 2] = np.maximum(lit[:, 2], 1e-4)  # continued to the horizon, where cos_l takes it to 0
-                lit /= np.linalg.norm(lit, axis=1, keepdims=True)
-                f = _rgb(model, lit, view) * cos_l[:, None]
-                d = _eval2d(ndf_table, ux_m, uy_m)
-                u_wi = np.full(1, np.sqrt(2.0 * th / np.pi)), np.full(1, (phi + np.pi) / (2.0 * np.pi))
-                sig = _eval2d(sigma_table, *u_wi)
-                rgb[p, t] = (f * (4.0 * sig[0] / np.maximum(d, 1e-30))[:, None]).T.reshape(3, s, s)
+        # Every incidence's nodes in one call each: lanes ordered (phi_i, theta_i, row, column) like the field.
+        pp, tt = (a.ravel() for a in np.meshgrid(phi_i, theta_i, sx, indexing="ij")[:2])
+        xs, ys = np.tile(sx, len(phi_i) * len(theta_i)), np.tile(sy, len(phi_i) * len(theta_i))
+        ux_m, uy_m = _sample(warp, xs, ys, pp.astype(f32), tt.astype(f32))
+        d = _eval2d(ndf_table, ux_m, uy_m)
+        sig = _eval2d(sigma_table, np.sqrt(2.0 * tt / np.pi), (pp + np.pi) / (2.0 * np.pi))
+    m = _sph(_u2theta(ux_m), _u2phi(uy_m) + (pp if reduction == 0 else 0.0))
+    view = _sph(np.minimum(tt, THETA_EVAL_MAX), pp)
+    light = 2.0 * np.sum(m * view, axis=1, keepdims=True) * m - view
+    cos_l = np.maximum(light[:, 2], 0.0)
+    lit = light.copy()
+    lit[:, 2] = np.maximum(lit[:, 2], 1e-4)  # continued to the horizon, where cos_l takes it to 0
+    lit /= np.linalg.norm(lit, axis=1, keepdims=True)
+    f = _rgb(model, lit, view) * (cos_l * 4.0 * sig / np.maximum(d, 1e-30))[:, None]
+    rgb = np.moveaxis(f.reshape(len(phi_i), len(theta_i), s, s, 3), -1, 2).astype(f32)
     if not np.all(np.isfinite(rgb)) or np.any(rgb < 0.0):
         bad = "not finite" if not np.all(np.isfinite(rgb)) else "negative"
         raise ValueError(f"{name}: f_r is {bad} at some tabulated directions; it cannot be tabulated")
@@ -336,7 +334,11 @@ def tabulate(model: BRDF, grid: TabulationGrid | None = None, *, variant: str | 
         raise ValueError(f"{name}: f_r is zero at every tabulated direction; nothing to tabulate")
     lum = np.moveaxis(rgb, 2, -1) @ LUMINANCE.astype(f32)
     lum = np.maximum(lum, 1e-6 * float(lum.max())).astype(f32)
-    description = f"gonio {gonio_version()}: {json.dumps(to_json_dict(model))}"
+    try:
+        what = json.dumps(to_json_dict(model))
+    except TypeError:  # any object with eval tabulates; only gonio's models have a JSON form
+        what = name
+    description = f"gonio {gonio_version()}: {what}"
     fields: dict[str, npt.NDArray[Any]] = {
         "description": np.frombuffer(description.encode(), dtype=np.uint8),
         "theta_i": theta_i.astype(f32),
