@@ -1,4 +1,4 @@
-"""model.mitsuba.tabulated and tensor_file: the RGL .bsdf file Mitsuba's own ``measured`` plugin reads back as the model.
+"""model.mitsuba.tabulated and tensor_file: an RGL .bsdf file that Mitsuba's own ``measured`` plugin reads as the model.
 
 Mitsuba is the oracle throughout: its reader parses the tensor file, its ``measured`` plugin evaluates the table
 (exactly at the tabulated nodes, within a stated tolerance between them, for isotropic and anisotropic models and
@@ -114,7 +114,7 @@ def test_the_tensor_file_reads_back_in_mitsubas_own_reader(tmp_path: Path) -> No
     with pytest.raises(ValueError, match=r"t\.tensor: not a Mitsuba tensor file"):
         read_tensor_file(path)
     path.write_bytes(tensor_bytes(fields)[:-8])
-    with pytest.raises(ValueError, match="'flag'|'b'|truncated"):
+    with pytest.raises(ValueError, match=r"'flag'|'b'|truncated"):
         read_tensor_file(path)
 
 
@@ -122,8 +122,9 @@ def test_the_file_has_the_fields_dtypes_and_shapes_the_measured_plugin_checks(tm
     t = tabulate(Phong(rho_d=(0.3, 0.2, 0.1), rho_s=(0.4, 0.5, 0.6), n=30.0), LOW)
     f = read_tensor_file(t.write(tmp_path / "phong.bsdf"))
     n_phi, n_theta, s, n = 1, LOW.theta_i, LOW.samples, LOW.ndf
-    expected = {"theta_i": (n_theta,), "phi_i": (n_phi,), "ndf": (n, n), "sigma": (n, n), "vndf": (n_phi, n_theta, n, n),
-                "luminance": (n_phi, n_theta, s, s), "rgb": (n_phi, n_theta, 3, s, s), "jacobian": (1,)}  # fmt: skip
+    expected = {"theta_i": (n_theta,), "phi_i": (n_phi,), "ndf": (n, n), "sigma": (n, n),
+                "vndf": (n_phi, n_theta, n, n), "luminance": (n_phi, n_theta, s, s), "rgb": (n_phi, n_theta, 3, s, s),
+                "jacobian": (1,)}  # fmt: skip
     assert set(f) == {*expected, "description"}  # RGB: no "spectra" or "wavelengths"
     for name, shape in expected.items():
         assert f[name].shape == shape, name
@@ -252,11 +253,11 @@ def test_a_resolution_out_of_range_names_the_field_and_its_range(key: str, value
 
 
 def test_a_model_that_cannot_be_tabulated_says_why() -> None:
-    with pytest.raises(ValueError, match="Broken: retro-reflection f.w, w. not finite"):
+    with pytest.raises(ValueError, match=r"Broken: retro-reflection f\(w, w\) not finite"):
         tabulate(Broken(float("nan")), LOW)
     with pytest.raises(ValueError, match="Broken: f_r is negative"):
         tabulate(Broken(-1.0), LOW)
     with pytest.raises(ValueError, match="Broken: f_r is zero at every tabulated direction"):
         tabulate(Broken(0.0), LOW)
-    with pytest.raises(ValueError, match="2 channels; an RGB .bsdf file holds 1 or 3"):
+    with pytest.raises(ValueError, match=r"2 channels; an RGB \.bsdf file holds 1 or 3"):
         tabulate(Broken(0.1, channels=2), LOW)
