@@ -16,6 +16,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -31,7 +32,7 @@ DTYPE_CODES: dict[np.dtype[np.generic], int] = {
 ALIGN = 8
 
 
-def tensor_bytes(fields: Mapping[str, npt.NDArray[np.generic]]) -> bytes:
+def tensor_bytes(fields: Mapping[str, npt.NDArray[Any]]) -> bytes:
     """The tensor file holding ``fields`` (name -> array, any rank), as bytes."""
     arrays = {name: np.ascontiguousarray(value) for name, value in fields.items()}
     for name, a in arrays.items():
@@ -55,7 +56,7 @@ def tensor_bytes(fields: Mapping[str, npt.NDArray[np.generic]]) -> bytes:
     return bytes(out)
 
 
-def read_tensor_file(path: str | Path) -> dict[str, npt.NDArray[np.generic]]:
+def read_tensor_file(path: str | Path) -> dict[str, npt.NDArray[Any]]:
     """The fields of a tensor file (name -> array); raises ValueError naming the file if it is not one."""
     data = Path(path).read_bytes()
     if len(data) < 18 or data[:12] != MAGIC:

@@ -96,7 +96,7 @@ def model_values(model: BRDF, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
 
 
 def test_the_tensor_file_reads_back_in_mitsubas_own_reader(tmp_path: Path) -> None:
-    fields = {
+    fields: dict[str, np.ndarray] = {
         "description": np.frombuffer(b"odd length!", dtype=np.uint8),
         "a": np.arange(7, dtype=np.float32).reshape(7),
         "b": np.linspace(0, 1, 24, dtype=np.float32).reshape(2, 3, 4),
@@ -105,7 +105,7 @@ def test_the_tensor_file_reads_back_in_mitsubas_own_reader(tmp_path: Path) -> No
     path = tmp_path / "t.tensor"
     path.write_bytes(tensor_bytes(fields))
     back = read_tensor_file(path)
-    theirs = mi.tensor_io.read(str(path))  # Mitsuba's Python reader
+    theirs: dict[str, np.ndarray] = mi.tensor_io.read(str(path))  # type: ignore[attr-defined]  # Mitsuba's reader
     for name, value in fields.items():
         np.testing.assert_array_equal(back[name], value)
         np.testing.assert_array_equal(theirs[name], value)
