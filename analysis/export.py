@@ -194,9 +194,10 @@ def _readme(model: BRDF, name: str, forms: StockForms, mr: MetalRoughnessFit, fi
                                     "Python process that imported `model.mitsuba.plugin` (stock Mitsuba refuses it)",
         TABULATED_FILE: "the model tabulated in the RGL `.bsdf` format (Dupuy & Jakob 2018) that stock Mitsuba's "
                         "`measured` plugin reads (rgb variants)",
-        "mitsuba_measured.xml": f"the `measured` BSDF reading `{TABULATED_FILE}` (XML, resolved beside this file)",
+        "mitsuba_measured.xml": f"the `measured` BSDF reading `{TABULATED_FILE}` (XML; Mitsuba finds the table "
+                                "for scenes in this directory, else add it: `mi.file_resolver().prepend(dir)`)",
         "mitsuba_measured.json": f"the same as a scene-dict entry (`filename` `{TABULATED_FILE}` is relative: load "
-                                 "from this directory or give the full path)",
+                                 "from this directory, add it to Mitsuba's file resolver, or give the full path)",
         "mitsuba_projection.xml": "the nearest diffuse + GGX roughconductor, fitted to the model (XML)",
         "mitsuba_projection.json": "the same projection as a scene-dict entry",
         "gltf_material.json": "glTF 2.0 metal-roughness material object (a projection, error below)",

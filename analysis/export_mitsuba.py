@@ -127,8 +127,10 @@ def measured_xml(model: BRDF, name: str, table: Tabulated, error: dict[str, Any]
     """Mitsuba 3 XML ``<bsdf id=name>`` of Mitsuba's ``measured`` plugin reading the table (beside the XML)."""
     notes = [
         f"gonio export: {tabulated_note(model, table, error)}",
-        f"{TABULATED_FILE} is resolved relative to this file's directory; RGB table: Mitsuba's rgb variants only. "
-        "The exact model: material.json (gonio), or mitsuba_gonio_plugin.xml where gonio is installed",
+        f"Mitsuba finds {TABULATED_FILE} through its file resolver: for a scene file in this directory (such as "
+        "mitsuba_scene.xml) it does; from elsewhere, add this directory (mi.file_resolver().prepend(...)) or "
+        "copy the table beside the scene. RGB table: Mitsuba's rgb variants only. The exact model: "
+        "material.json (gonio), or mitsuba_gonio_plugin.xml where gonio is installed",
     ]
     lines = _xml_lines(measured_bsdf(TABULATED_FILE), "bsdf", f" id={quoteattr(name)}", "")
     lines[1:1] = ["    " + _comment(n) for n in notes]
