@@ -33,15 +33,17 @@ flatten the lobe's share; and D is mixed half and half (:data:`NDF_FLOOR_WEIGHT`
 mixes that GGX with the uniform NDF, GGX alpha 1). Measured with the default grid (Mitsuba evaluating the
 file on projection.py's grid): this mix keeps Lambert, Oren-Nayar, Phong n = 30 and n = 300 and Lambert +
 GGX (alpha 0.05 and 0.2, Schlick) all within 3.2 % relative RMS, where the raw retro-reflection NDF
-(diffuse base included) was 23 % off for the alpha = 0.05 lobe and a uniform floor 15 % for alpha 0.2.
+(diffuse base included) mixed with GGX alpha 0.2 was 23 % off for the alpha = 0.05 lobe, and mixed with 5 %
+of the uniform NDF 15 % off for alpha 0.2.
 
 Anisotropy. The format allows it (phi_i tabulated, absolute phi_m). Mitsuba folds phi_i by the symmetry the
 table's phi_i range declares (``m_reduction``: 2 pi / range): a mirror-symmetric model (f unchanged when x or
 y flips, such as Ward or Ashikhmin-Shirley) is tabulated over a quarter turn, one unchanged by a half turn
 over half, any other over the whole turn; :func:`symmetry` tests the model numerically.
 
-Sizes (float32, 8-byte aligned): isotropic, the default grid: 0.8 MB; anisotropic with mirror symmetry and
-the default 22.5 deg azimuth step: 4.0 MB (:attr:`Tabulated.size_bytes` says the exact figure).
+Sizes (float32, 8-byte aligned) at the default grid: isotropic 0.8 MB; anisotropic with the default 22.5 deg
+azimuth step 4.0 MB (mirror symmetry), 7.1 MB (half turn) or 13.4 MB (none); :attr:`Tabulated.size_bytes` says
+the exact figure.
 """
 
 from __future__ import annotations
