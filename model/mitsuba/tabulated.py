@@ -52,6 +52,7 @@ import json
 import os
 import tempfile
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -108,7 +109,7 @@ class TabulationGrid:
 
 @dataclass(frozen=True, eq=False)
 class Tabulated:
-    """A model tabulated in the RGL format: the tensor fields, and how they were made."""
+    """A model tabulated in the RGL format: the tensor fields (read-only: the file is built once), and how."""
 
     model_name: str
     grid: TabulationGrid
@@ -120,14 +121,18 @@ class Tabulated:
         """Whether the table has a single incidence azimuth (Mitsuba then uses relative phi_m)."""
         return self.reduction == 0
 
+    @cached_property
+    def _bytes(self) -> bytes:
+        return tensor_bytes(self.fields)
+
     def to_bytes(self) -> bytes:
         """The ``.bsdf`` file's contents."""
-        return tensor_bytes(self.fields)
+        return self._bytes
 
     @property
     def size_bytes(self) -> int:
         """Size of the file in bytes."""
-        return len(self.to_bytes())
+        return len(self._bytes)
 
     def write(self, path: str | os.PathLike[str]) -> Path:
         """Write the ``.bsdf`` file to ``path`` (beside it first, then renamed: never half written)."""
