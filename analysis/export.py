@@ -19,7 +19,7 @@ A fit is useful beyond gonio only if other tools can take it. Each export says h
   ``mitsuba_projection.xml`` / ``mitsuba_projection.json``: the projection under its own name. Which of the
   two ``mitsuba_bsdf.*`` hold is ``stock``: ``"auto"`` (the default) takes the one with the lower relative
   RMS difference (the table for every model measured so far: Phong n = 30 1.8 % against the projection's
-  124 %, anisotropic Ward 3.2 % against 79 %, Oren-Nayar 1.7 % against 12 %, Lambert + GGX with Schlick
+  124 %, anisotropic Ward 2.2 % against 79 %, Oren-Nayar 1.7 % against 12 %, Lambert + GGX with Schlick
   Fresnel 2.0 % against 2.7 %: bench/tabulated.py), ``"projection"`` or ``"tabulated"`` force one.
 - ``mitsuba_scene.xml``: a whole scene (a 5 cm patch of the material, a point light, a camera) that
   ``mitsuba mitsuba_scene.xml`` renders as it is.

@@ -6,7 +6,7 @@ the nearest diffuse + GGX roughconductor (:func:`model.mitsuba.projection.native
 tabulated for the ``measured`` plugin (:mod:`model.mitsuba.tabulated`). ``mitsuba_bsdf.*`` hold the one
 with the lower relative RMS difference unless the caller says which (``stock``). Measured on the default
 tabulation grid, the table wins for every model tried: Phong n = 30 1.8 % (projection 124 %), anisotropic
-Ward 3.2 % (79 %), Oren-Nayar 1.7 % (12 %), Lambert + GGX with Schlick Fresnel 2.0 % (2.7 %); at the low
+Ward 2.2 % (79 %), Oren-Nayar 1.7 % (12 %), Lambert + GGX with Schlick Fresnel 2.0 % (2.7 %); at the low
 grid of bench/tabulated.py (16 samples, 12 elevations) that last one is 4.4 %, and the projection is taken.
 """
 
@@ -80,7 +80,7 @@ def tabulated_facts(forms: StockForms) -> dict[str, Any]:
     g = table.grid
     return {
         "file": TABULATED_FILE, "plugin": "measured", "size_bytes": table.size_bytes, "isotropic": table.isotropic,
-        "azimuth_reduction": table.reduction, "rgb_shape": list(table.fields["rgb"].shape),
+        "symmetry": table.symmetry, "rgb_shape": list(table.fields["rgb"].shape),
         "grid": {"samples": g.samples, "theta_i": g.theta_i, "phi_i": g.phi_i, "ndf": g.ndf},
         "note": "RGL .bsdf (Dupuy & Jakob 2018) for Mitsuba's measured plugin, rgb variants; NDF from the "
                 "model's retro-reflection (model.mitsuba.tabulated)",

@@ -36,14 +36,17 @@ GGX (alpha 0.05 and 0.2, Schlick) all within 3.2 % relative RMS, where the raw r
 (diffuse base included) mixed with GGX alpha 0.2 was 23 % off for the alpha = 0.05 lobe, and mixed with 5 %
 of the uniform NDF 15 % off for alpha 0.2.
 
-Anisotropy. The format allows it (phi_i tabulated, absolute phi_m). Mitsuba folds phi_i by the symmetry the
-table's phi_i range declares (``m_reduction``: 2 pi / range): a mirror-symmetric model (f unchanged when x or
-y flips, such as Ward or Ashikhmin-Shirley) is tabulated over a quarter turn, one unchanged by a half turn
-over half, any other over the whole turn; :func:`symmetry` tests the model numerically.
+Anisotropy. The format allows it (phi_i tabulated, absolute phi_m), and the plugin can fold phi_i by a
+symmetry the table's phi_i range declares (``m_reduction`` = 2 pi / range: 4 folds the incidence into
+x <= 0, y <= 0, 2 into y <= 0). Those foldings are not used: an incidence with y = 0 exactly (any view in
+the x-z plane, a gonioreflectometer's in-plane sweep) folds to y = -0, which drjit's atan2 turns into
+phi_i = +pi, outside a folded table's range [-pi, -pi / 2], so Mitsuba reads another incidence's slice
+(measured: 5.6 % low for Ward at a view in the x-z plane, and its directional albedo there 17 % low).
+Anisotropic models are tabulated over the whole turn, from -pi to pi, where +pi is a node. :func:`symmetry`
+still tells an isotropic model from the rest (and says which mirror or half-turn symmetry the rest have).
 
-Sizes (float32, 8-byte aligned) at the default grid: isotropic 0.8 MB; anisotropic with the default 22.5 deg
-azimuth step 4.0 MB (mirror symmetry), 7.1 MB (half turn) or 13.4 MB (none); :attr:`Tabulated.size_bytes` says
-the exact figure.
+Sizes (float32, 8-byte aligned) at the default grid: isotropic 0.8 MB; anisotropic, with the default 22.5 deg
+azimuth step (17 azimuths), 13.4 MB; :attr:`Tabulated.size_bytes` says the exact figure.
 """
 
 from __future__ import annotations
@@ -91,7 +94,8 @@ class TabulationGrid:
 
     samples: the s x s sample grid per tabulated incidence (the ``rgb`` field's last two axes).
     theta_i: incidence elevations, uniform from 0 to 90 deg.
-    phi_i: incidence azimuths per quarter turn, uniform (anisotropic models only; 5 is a 22.5 deg step).
+    phi_i: incidence azimuths per quarter turn, ends included, uniform (anisotropic models only; 5 is a 22.5
+        deg step, 17 azimuths over the turn).
     ndf: the n x n ``ndf``, ``sigma`` and ``vndf`` tables over the unit square.
     """
 
@@ -113,13 +117,13 @@ class Tabulated:
 
     model_name: str
     grid: TabulationGrid
-    reduction: int  # 0 isotropic; else 4, 2 or 1 (the turn's fraction the azimuths cover)
+    symmetry: int  # as symmetry() says: 0 isotropic (one azimuth); else 4, 2 or 1 (tabulated over the whole turn)
     fields: dict[str, npt.NDArray[Any]] = field(repr=False)
 
     @property
     def isotropic(self) -> bool:
         """Whether the table has a single incidence azimuth (Mitsuba then uses relative phi_m)."""
-        return self.reduction == 0
+        return self.symmetry == 0
 
     @cached_property
     def _bytes(self) -> bytes:
@@ -145,7 +149,7 @@ class Tabulated:
     def summary(self) -> str:
         """One line: resolution, symmetry and size."""
         t = self.fields["rgb"].shape
-        how = "isotropic" if self.isotropic else f"anisotropic, azimuths over 1/{self.reduction} turn"
+        how = "isotropic" if self.isotropic else "anisotropic, azimuths over the whole turn"
         return (f"RGL .bsdf ({how}): {t[0]} x {t[1]} incidences (phi_i x theta_i), {t[3]} x {t[4]} samples each, "
                 f"{self.size_bytes / 1e6:.2f} MB")  # fmt: skip
 
@@ -286,23 +290,22 @@ def _eval2d(table: Any, x: Array, y: Array) -> Array:
     return np.array([table.eval(mi.Point2f(float(a), float(b))) for a, b in zip(x, y, strict=True)], dtype=np.float64)
 
 
-def _phi_nodes(reduction: int, per_quarter: int) -> Array:
-    if reduction == 0:
+def _phi_nodes(isotropic: bool, per_quarter: int) -> Array:
+    if isotropic:
         return np.zeros(1)
-    # Mitsuba folds wi into x <= 0, y <= 0 (reduction 4) or y <= 0 (2): phi_i from -pi.
-    span = 2.0 * np.pi / reduction
-    return np.asarray(np.linspace(-np.pi, -np.pi + span, (per_quarter - 1) * (4 // reduction) + 1))
+    # The whole turn, both ends included (the same direction): Mitsuba's folded ranges miss y = 0 (docstring).
+    return np.asarray(np.linspace(-np.pi, np.pi, 4 * (per_quarter - 1) + 1))
 
 
 def tabulate(model: BRDF, grid: TabulationGrid | None = None, *, variant: str | None = None) -> Tabulated:
     """``model`` (f_r in 1/sr) as an RGL .bsdf table for Mitsuba's ``measured`` plugin (module docstring)."""
     grid = grid or TabulationGrid()
     name = type(model).__name__
-    reduction = symmetry(model)
-    ndf, sigma = retro_ndf(model, grid.ndf, reduction == 0)
+    sym = symmetry(model)
+    ndf, sigma = retro_ndf(model, grid.ndf, sym == 0)
     sq = _Square(grid.ndf)
     theta_i = np.linspace(0.0, np.pi / 2.0, grid.theta_i)
-    phi_i = _phi_nodes(reduction, grid.phi_i)
+    phi_i = _phi_nodes(sym == 0, grid.phi_i)
     s = grid.samples
     sx, sy = (a.ravel() for a in np.meshgrid(np.linspace(0.0, 1.0, s), np.linspace(0.0, 1.0, s)))
     vndf = np.empty((len(phi_i), len(theta_i), grid.ndf, grid.ndf), np.float32)
@@ -325,7 +328,7 @@ def tabulate(model: BRDF, grid: TabulationGrid | None = None, *, variant: str | 
         ux_m, uy_m = _sample(warp, xs, ys, pp.astype(f32), tt.astype(f32))
         d = _eval2d(ndf_table, ux_m, uy_m)
         sig = _eval2d(sigma_table, np.sqrt(2.0 * tt / np.pi), (pp + np.pi) / (2.0 * np.pi))
-    m = _sph(_u2theta(ux_m), _u2phi(uy_m) + (pp if reduction == 0 else 0.0))
+    m = _sph(_u2theta(ux_m), _u2phi(uy_m) + (pp if sym == 0 else 0.0))
     view = _sph(np.minimum(tt, THETA_EVAL_MAX), pp)
     light = 2.0 * np.sum(m * view, axis=1, keepdims=True) * m - view
     cos_l = np.maximum(light[:, 2], 0.0)
@@ -357,7 +360,7 @@ def tabulate(model: BRDF, grid: TabulationGrid | None = None, *, variant: str | 
         "rgb": rgb,
         "jacobian": np.ones(1, np.uint8),
     }
-    return Tabulated(name, grid, reduction, fields)
+    return Tabulated(name, grid, sym, fields)
 
 
 def tabulated_error(model: BRDF, table: Tabulated, variant: str | None = None) -> dict[str, Any]:

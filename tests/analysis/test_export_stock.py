@@ -143,4 +143,4 @@ def test_stock_export_renders_without_gonio_and_its_stated_error_holds(case: str
     if case.startswith("lambert_ggx"):
         assert 0.005 < rms(projected) < 0.1 and rms(measured) < 0.03  # measured 2.7 % and 2.0 %
     if case in ("phong", "ward_anisotropic"):
-        assert rms(projected) > 0.5 and rms(measured) < 0.05  # measured 124 % / 1.8 % and 79 % / 3.2 %
+        assert rms(projected) > 0.5 and rms(measured) < 0.05  # measured 124 % / 1.8 % and 79 % / 2.2 %
