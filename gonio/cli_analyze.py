@@ -136,7 +136,8 @@ def add_fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--merl", action="store_true", help="also export the chosen model as a MERL .binary (35 MB)")
     p.add_argument("--mitsuba-plugin", action="store_true",
                    help="also export the exact model for gonio's Mitsuba plugin (export/mitsuba_gonio_plugin.xml; "
-                   "renders only where gonio is installed) when the stock-Mitsuba export is a projection")  # fmt: skip
+                   "renders only where gonio is installed) when the stock-Mitsuba export is not exact (a table or a "
+                   "projection)")  # fmt: skip
     p.add_argument("--mitsuba-stock", default="auto", choices=("auto", "tabulated", "projection"),
                    help="what export/mitsuba_bsdf.xml holds for a model with no native Mitsuba plugin: auto "
                    "(default: whichever Mitsuba measures closer), tabulated (the RGL table material.bsdf for the "
