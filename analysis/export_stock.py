@@ -18,7 +18,7 @@ from typing import Any
 from analysis.export_mitsuba import TABULATED_FILE
 from model.base import BRDF
 from model.mitsuba.projection import NativeProjection, native_projection
-from model.mitsuba.tabulated import Tabulated, TabulationGrid, measured_bsdf, tabulate, tabulated_error
+from model.mitsuba.tabulated import Tabulated, TabulationGrid, tabulate, tabulated_error
 
 #: What ``export_material(stock=...)`` accepts: which form mitsuba_bsdf.* hold for a model without a native plugin.
 STOCK_FORMS: tuple[str, ...] = ("auto", "tabulated", "projection")
@@ -37,18 +37,6 @@ class StockForms:
     table_error: dict[str, Any] | None
     chosen: str
     refusal: str | None = None
-
-    def stock_entry(self) -> dict[str, Any]:
-        """The scene-dict entry mitsuba_bsdf.json holds."""
-        if self.chosen == "tabulated":
-            return measured_bsdf(TABULATED_FILE)
-        return self.projection.bsdf
-
-    def stock_error(self) -> dict[str, Any]:
-        """The Mitsuba-measured error of what mitsuba_bsdf.* hold."""
-        if self.chosen == "tabulated" and self.table_error is not None:
-            return self.table_error
-        return self.projection.error
 
 
 def stock_forms(
