@@ -213,7 +213,9 @@ def _readme(model: BRDF, name: str, forms: StockForms, mr: MetalRoughnessFit, fi
         native = json.dumps(to_json_dict(projection.native_model))
         lines += [
             f"`mitsuba_bsdf.xml` and `mitsuba_bsdf.json` hold {default[forms.chosen]}"
-            + (" (the stock form with the lower relative RMS difference)." if forms.chosen != "native" else "."), "",
+            + (" (the only stock form: the model could not be tabulated, see below)." if forms.refusal
+               else " (the stock form with the lower relative RMS difference)." if forms.requested == "auto"
+               else f" (as asked: `--mitsuba-stock {forms.requested}`)."), "",
             "### Projection (`mitsuba_projection.xml`)", "", stock_note(model, projection) + ".", "",
             _error_paragraph(projection.error), "",
             f"The projection is the Mitsuba form of the gonio model `{native}`, fitted to the exported model's values.",

@@ -29,7 +29,8 @@ class StockForms:
     """The stock-Mitsuba forms of a model: the projection (or exact mapping), the table, and which is the default.
 
     ``chosen`` is "native" (an exact mapping: no table), "projection" or "tabulated"; ``table`` and
-    ``table_error`` are None for native models and where the model could not be tabulated (``refusal`` says why).
+    ``table_error`` are None for native models and where the model could not be tabulated (``refusal`` says why);
+    ``requested`` is what the caller asked for (one of STOCK_FORMS).
     """
 
     projection: NativeProjection
@@ -37,6 +38,7 @@ class StockForms:
     table_error: dict[str, Any] | None
     chosen: str
     refusal: str | None = None
+    requested: str = "auto"
 
 
 def stock_forms(
@@ -53,11 +55,11 @@ def stock_forms(
     except ValueError as exc:
         if stock == "tabulated":
             raise
-        return StockForms(projection, None, None, "projection", refusal=str(exc))
+        return StockForms(projection, None, None, "projection", refusal=str(exc), requested=stock)
     error = tabulated_error(model, table, variant)
     better = error["rms_rel"] < projection.error["rms_rel"]
     chosen = "tabulated" if stock == "tabulated" or (stock == "auto" and better) else "projection"
-    return StockForms(projection, table, error, chosen)
+    return StockForms(projection, table, error, chosen, requested=stock)
 
 
 def tabulated_facts(forms: StockForms) -> dict[str, Any]:

@@ -238,6 +238,7 @@ def test_the_projection_stays_the_default_on_request_and_a_bad_choice_is_refused
     assert json.loads(paths["mitsuba_json"].read_text()) == mitsuba_dict(native)
     assert paths["mitsuba_xml"].read_text() == paths["mitsuba_projection_xml"].read_text()
     assert "tabulated" in paths  # the table is there all the same, under its own name
+    assert "hold the projection (as asked: `--mitsuba-stock projection`)" in paths["readme"].read_text()
     assert export_notes(paths)["mitsuba_xml"] == (
         "stock Mitsuba 3, no gonio needed: nearest stock BSDF (blendbsdf), a projection, relative RMS BRDF "
         f"difference {stock['error']['rms_rel']:.2%}, evaluated by Mitsuba")
@@ -261,7 +262,8 @@ def test_a_model_that_cannot_be_tabulated_falls_back_to_the_projection_and_says_
     assert facts["mitsuba_stock"]["form"] == "projection" and "tabulated" not in paths
     refusal = "Phong: f_r is negative at some tabulated directions"
     assert facts["mitsuba_tabulated"] == {"file": None, "refusal": refusal}
-    assert "Not written: Phong: f_r is negative" in paths["readme"].read_text()
+    readme = paths["readme"].read_text()
+    assert "Not written: Phong: f_r is negative" in readme and "the model could not be tabulated" in readme
     with pytest.raises(ValueError, match="Phong: f_r is negative"):
         export_material(m, tmp_path / "forced", stock="tabulated")
     assert not (tmp_path / "forced").exists()
