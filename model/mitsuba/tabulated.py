@@ -75,7 +75,8 @@ Array = npt.NDArray[np.float64]
 
 #: Allowed range of each TabulationGrid field (inclusive).
 LIMITS: dict[str, tuple[int, int]] = {"samples": (4, 256), "theta_i": (2, 90), "phi_i": (2, 46), "ndf": (8, 128)}
-#: Power iterations of the retro-reflection NDF (converged to 1e-3 after 4 on the models tested).
+#: Power iterations of the retro-reflection NDF (measured on Phong, Lambert + GGX, Ward and Oren-Nayar: after 6
+#: it differs from 10 iterations' by at most 2e-6 of its peak, after 4 by 8e-5, after 2 by 3e-3).
 NDF_ITERATIONS = 6
 #: Share of the GGX NDF in the mix, and its alpha (see the module docstring).
 NDF_FLOOR_WEIGHT = 0.5
