@@ -34,6 +34,7 @@ bench: $(STAMP)
 	$(BIN)/python -m bench.fit
 	$(BIN)/python -m bench.batch
 	$(BIN)/python -m bench.analyze
+	$(BIN)/python -m bench.tabulated
 	$(BIN)/python -m bench.camera_calibration
 	$(BIN)/python -m bench.geometry_calibration --rigs 8
 	$(BIN)/python -m bench.calibration_payoff

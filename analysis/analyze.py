@@ -156,12 +156,14 @@ def default_out(source: str | Path) -> Path:
 
 def write_report(
     a: Analysis, out: str | Path, *, y_scale: str = "auto", merl: bool = False, log: Log | None = None,
-    mitsuba_plugin: bool = False, svg: bool = False, progress: bool = False, jobs: int = 1,
+    mitsuba_plugin: bool = False, svg: bool = False, progress: bool = False, jobs: int = 1, mitsuba_stock: str = "auto",
 ) -> Path:
     """Write figures/ (PNG; SVG too if ``svg``), fit.json, export/ (the chosen model for Mitsuba, glTF, optionally
     MERL) and index.html; ``progress``: a bar with ETA over the figures; ``jobs``: processes drawing figures.
 
-    ``mitsuba_plugin`` adds export/mitsuba_gonio_plugin.xml, the exact model for processes that have gonio.
+    ``mitsuba_plugin`` adds export/mitsuba_gonio_plugin.xml, the exact model for processes that have gonio;
+    ``mitsuba_stock`` (auto, tabulated, projection) picks what export/mitsuba_bsdf.* hold for a model
+    without a native Mitsuba plugin (auto: the table or the projection, whichever Mitsuba measures closer).
     """
     from analysis.report_html import write_html
     from analysis.report_plots import write_figures
@@ -179,7 +181,8 @@ def write_report(
     # Imported only now: it loads Mitsuba, whose threads would keep the figures from being drawn in forked workers.
     from analysis.export import export_material, export_notes
 
-    exports = export_material(a.selection.chosen.model, out / "export", merl=merl, gonio_plugin=mitsuba_plugin)
+    exports = export_material(a.selection.chosen.model, out / "export", merl=merl, gonio_plugin=mitsuba_plugin,
+                              stock=mitsuba_stock)  # fmt: skip
     return write_html(a, figures, out / "index.html", exports, notes=export_notes(exports))
 
 
@@ -200,12 +203,14 @@ def analyze(
     mitsuba_plugin: bool = False,
     svg: bool = False,
     progress: bool = False,
+    mitsuba_stock: str = "auto",
 ) -> Path:
     """Analyse a run, adaptive sweep, table or MERL file into ``out`` (default: see default_out); returns index.html."""
     a = load_and_fit(source, models=models, loss=loss, starts=starts, samples=samples, seed=seed, compare=compare,
                      log=log, errors=errors, progress=progress)  # fmt: skip
     return write_report(a, default_out(source) if out is None else out, y_scale=y_scale, merl=merl, log=log,
-                        mitsuba_plugin=mitsuba_plugin, svg=svg, progress=progress)  # fmt: skip
+                        mitsuba_plugin=mitsuba_plugin, svg=svg, progress=progress,
+                        mitsuba_stock=mitsuba_stock)  # fmt: skip
 
 
 def stderr_log(line: str) -> None:

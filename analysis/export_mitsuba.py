@@ -7,6 +7,12 @@ map exactly keep that mapping; the others are projected onto the nearest diffuse
 and the relative RMS difference (Mitsuba evaluating the native BSDF, gonio the model, over a fixed grid
 of directions) is written into the XML's comments and the export's README.
 
+Tabulated form (``material.bsdf`` with ``mitsuba_measured.xml`` / ``mitsuba_measured.json``): the model
+tabulated in the RGL ``.bsdf`` format (:mod:`model.mitsuba.tabulated`) for stock Mitsuba's ``measured``
+plugin, its error measured the same way (Mitsuba reading the file, on the same grid). For a model without a
+native plugin, ``mitsuba_bsdf.*`` hold whichever of the projection and the table is closer (the projection
+also stays under ``mitsuba_projection.*``).
+
 Plugin form (``mitsuba_gonio_plugin.xml``, ``plugin=True``): the ``gonio_model`` plugin with the model's
 JSON in ``model_json``: exact, but it renders only in a Python process that imported
 ``model.mitsuba.plugin`` under an rgb variant; stock Mitsuba says "Plugin gonio_model not found".
@@ -24,13 +30,16 @@ from model.merl import MerlTable
 from model.mitsuba import plugin as gonio_plugin
 from model.mitsuba.materials import to_mitsuba
 from model.mitsuba.projection import NativeProjection, native_projection
+from model.mitsuba.tabulated import Tabulated, measured_bsdf
 
 #: Mitsuba scene-format version written into standalone XML.
 XML_VERSION = "3.0.0"
 #: Plugins a nested dict may name to become a nested ``<bsdf>`` element.
-BSDF_PLUGINS = frozenset({"diffuse", "roughconductor", "conductor", "blendbsdf", gonio_plugin.PLUGIN})
+BSDF_PLUGINS = frozenset({"diffuse", "roughconductor", "conductor", "blendbsdf", "measured", gonio_plugin.PLUGIN})
 #: File the scene of :func:`scene_xml` includes (``analysis.export.FILES["mitsuba_xml"]``).
 BSDF_FILE = "mitsuba_bsdf.xml"
+#: The RGL table the ``measured`` forms name, relative to the export directory (``FILES["tabulated"]``).
+TABULATED_FILE = "material.bsdf"
 #: Pixels on a side and samples per pixel of the preview scene.
 SCENE_PIXELS = 128
 SCENE_SPP = 16
@@ -97,10 +106,41 @@ def _xml_lines(entry: dict[str, Any], tag: str, attrs: str, indent: str) -> list
     return lines
 
 
+def error_words(e: dict[str, Any]) -> str:
+    """How far a stock form is, in words: relative RMS, cosine weighted, worst, over how many pairs."""
+    return (
+        f"relative RMS BRDF difference {e['rms_rel']:.3%} (cosine weighted {e['rms_rel_cosine_weighted']:.3%}, "
+        f"worst {e['worst_rel']:.2%}) over {e['pairs']} pairs"
+    )
+
+
+def tabulated_note(model: BRDF, table: Tabulated, error: dict[str, Any]) -> str:
+    """One sentence: what the tabulated form is and how far it is from ``model`` (Mitsuba reading the file)."""
+    return (
+        f"{type(model).__name__} tabulated for stock Mitsuba's measured plugin in {TABULATED_FILE} "
+        f"({table.summary()}): "
+        f"{error_words(error)}, Mitsuba reading the file against gonio on a grid to 80 deg"
+    )
+
+
+def measured_xml(model: BRDF, name: str, table: Tabulated, error: dict[str, Any]) -> str:
+    """Mitsuba 3 XML ``<bsdf id=name>`` of Mitsuba's ``measured`` plugin reading the table (beside the XML)."""
+    notes = [
+        f"gonio export: {tabulated_note(model, table, error)}",
+        f"Mitsuba finds {TABULATED_FILE} through its file resolver: for a scene file in this directory (such as "
+        "mitsuba_scene.xml) it does; from elsewhere, add this directory (mi.file_resolver().prepend(...)) or "
+        "copy the table beside the scene. RGB table: Mitsuba's rgb variants only. The exact model: "
+        "material.json (gonio), or mitsuba_gonio_plugin.xml where gonio is installed",
+    ]
+    lines = _xml_lines(measured_bsdf(TABULATED_FILE), "bsdf", f" id={quoteattr(name)}", "")
+    lines[1:1] = ["    " + _comment(n) for n in notes]
+    return "\n".join(lines) + "\n"
+
+
 def stock_note(model: BRDF, projection: NativeProjection) -> str:
     """One sentence: how the stock-Mitsuba BSDF relates to ``model`` and how far it is (Mitsuba-evaluated)."""
     e = projection.error
-    size = f"relative RMS BRDF difference {e['rms_rel']:.3%} (worst {e['worst_rel']:.2%}) over {e['pairs']} pairs"
+    size = error_words(e)
     if projection.exact:
         return f"{type(model).__name__} maps exactly to stock Mitsuba ({projection.material.note}); measured {size}"
     # The projected model's own note ends in how exactly *it* maps (": exact"), which is not the point here.

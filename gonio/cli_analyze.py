@@ -81,7 +81,7 @@ def _analyze(args: argparse.Namespace) -> int:
                      seed=args.seed, compare=args.compare, log=log, errors=args.errors,
                      progress=not args.quiet)  # fmt: skip
     options = {"y_scale": args.y_scale, "merl": args.merl, "mitsuba_plugin": args.mitsuba_plugin, "svg": args.svg,
-               "progress": not args.quiet, "jobs": args.jobs}  # fmt: skip
+               "progress": not args.quiet, "jobs": args.jobs, "mitsuba_stock": args.mitsuba_stock}  # fmt: skip
     if not whole:
         page = write_report(a, out, log=log, **options)
     else:
@@ -136,6 +136,12 @@ def add_fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--merl", action="store_true", help="also export the chosen model as a MERL .binary (35 MB)")
     p.add_argument("--mitsuba-plugin", action="store_true",
                    help="also export the exact model for gonio's Mitsuba plugin (export/mitsuba_gonio_plugin.xml; "
-                   "renders only where gonio is installed) when the stock-Mitsuba export is a projection")  # fmt: skip
+                   "renders only where gonio is installed) when the stock-Mitsuba export is not exact (a table or a "
+                   "projection)")  # fmt: skip
+    p.add_argument("--mitsuba-stock", default="auto", choices=("auto", "tabulated", "projection"),
+                   help="what export/mitsuba_bsdf.xml holds for a model with no native Mitsuba plugin: auto "
+                   "(default: whichever Mitsuba measures closer), tabulated (the RGL table material.bsdf for the "
+                   "measured plugin) or projection (the nearest diffuse + GGX); both are also written under their "
+                   "own names")  # fmt: skip
     p.add_argument("--svg", action="store_true", help="also write every figure as SVG beside its PNG (slower; the "
                    "page links each PNG to its SVG)")  # fmt: skip

@@ -26,7 +26,8 @@ Everything else goes through the Python plugin (:mod:`model.mitsuba.plugin`), wh
 model itself, float64 inside, to float32 precision:
 
 - Phong, Blinn-Phong, Ward, Ashikhmin-Shirley, Oren-Nayar, Lafortune, Kajiya-Kay, MERL tables and any
-  other object with ``eval``: Mitsuba has no such plugin (its ``measured`` reads RGL files only).
+  other object with ``eval``: Mitsuba has no such plugin (its ``measured`` reads RGL files only; stock
+  Mitsuba renders them from the tables :mod:`model.mitsuba.tabulated` writes).
 - Cook-Torrance with a Blinn-Phong distribution, height-correlated Smith, Smith-Schlick, V-groove or
   no masking, Schlick Fresnel, F0 < 2e-3, or rho_d reaching 1: no Mitsuba plugin computes those.
 - glTF :class:`model.MetalRoughness` is not ``principled``: principled uses separable Smith masking

@@ -142,17 +142,23 @@ def _rms(g: Array, f: Array, w: Array) -> tuple[float, list[float]]:
     return float(np.sqrt(d2.sum() / max(f2.sum(), 1e-300))), [float(x) for x in np.sqrt(d2 / np.maximum(f2, 1e-300))]
 
 
-def grid_error(source: BRDF, bsdf: dict[str, Any], variant: str | None = None) -> dict[str, Any]:
-    """How far Mitsuba's isotropic ``bsdf`` is from ``source`` on the grid (module docstring), as JSON values.
+def grid_error(
+    source: BRDF, bsdf: dict[str, Any], variant: str | None = None, *, isotropic: bool = True
+) -> dict[str, Any]:
+    """How far Mitsuba's ``bsdf`` is from ``source`` on the grid (module docstring), as JSON values.
 
-    Mitsuba evaluates the phi_i = 0 slice only: every BSDF :func:`native_projection` builds is isotropic,
-    so its other slices are the same numbers (the source is evaluated on all of them).
+    For an ``isotropic`` BSDF (every one :func:`native_projection` builds) Mitsuba evaluates the phi_i = 0
+    slice only, since its other slices are the same numbers (the source is evaluated on all of them); an
+    anisotropic one (a tabulated anisotropic model) is evaluated by Mitsuba on every slice.
     """
     name = variant or pick_variant("rgb")
     wi, wo = grid_pairs()
     f = _values(source, wi, wo)
-    slice_wi, slice_wo = grid_pairs(GRID_PHI_I_DEG[:1])
-    g = np.tile(mitsuba_values(bsdf, slice_wi, slice_wo, name), (len(GRID_PHI_I_DEG), 1))
+    if isotropic:
+        slice_wi, slice_wo = grid_pairs(GRID_PHI_I_DEG[:1])
+        g = np.tile(mitsuba_values(bsdf, slice_wi, slice_wo, name), (len(GRID_PHI_I_DEG), 1))
+    else:
+        g = mitsuba_values(bsdf, wi, wo, name)
     f = np.broadcast_to(f, g.shape) if f.shape[1] == 1 else f
     rms, per_channel = _rms(g, f, np.ones(len(f)))
     # What a camera sees of a unit area under a unit light, f cos_i cos_o, over the solid-angle measure.

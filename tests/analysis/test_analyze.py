@@ -208,6 +208,29 @@ def test_a_stopped_run_is_analysed_as_far_as_it_got_with_a_warning(gold_run: Pat
     assert not (out / "export" / "material.binary").exists()  # 35 MB: only with --merl
 
 
+@pytest.mark.slow  # about 7 s: a fit, the figures, the projection fit and the table
+def test_a_fit_without_a_native_plugin_exports_the_table_and_the_page_states_both_errors(
+    gold_run: Path, tmp_path: Path, capsys
+) -> None:
+    # Lambert + GGX with Schlick Fresnel has no stock plugin: export/ holds the RGL table and the projection, and
+    # --mitsuba-stock projection keeps the projection in mitsuba_bsdf.xml.
+    out = tmp_path / "report"
+    args = ["analyze", str(gold_run), "--out", str(out), "--models", "lambert_ggx_schlick", "--starts", "1", "--quiet"]
+    assert cli.main([*args, "--mitsuba-stock", "projection"]) == 0, capsys.readouterr().err
+    facts = json.loads((out / "export" / "material.json").read_text())["facts"]
+    assert facts["mitsuba_stock"]["form"] == "projection"
+    html = (out / "index.html").read_text()
+    table, projection = facts["mitsuba_tabulated"], facts["mitsuba_projection"]
+    for name in ("material.bsdf", "mitsuba_measured.xml", "mitsuba_measured.json", "mitsuba_projection.xml"):
+        assert (out / "export" / name).stat().st_size > 0 and f'href="export/{name}"' in html
+    assert f"relative RMS BRDF difference {table['error']['rms_rel']:.2%} (cosine weighted " in html
+    assert f"RGL .bsdf table for stock Mitsuba&#x27;s measured plugin ({table['size_bytes'] / 1e6:.2f} MB)" in html
+    assert f"a projection, relative RMS BRDF difference {projection['error']['rms_rel']:.2%}" in html
+    with pytest.raises(SystemExit) as refused:
+        cli.main([*args, "--force", "--mitsuba-stock", "tabular"])
+    assert refused.value.code == 2 and "'tabular'" in capsys.readouterr().err
+
+
 @pytest.fixture(scope="module")
 def plastic_merl(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_merl_of(PLASTIC, tmp_path_factory.mktemp("merl") / "plastic.binary")

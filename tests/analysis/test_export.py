@@ -152,7 +152,7 @@ def test_export_material_writes_every_file_for_a_native_model(tmp_path: Path) ->
     m = NATIVE["lambert_ggx_dielectric"][0]
     paths = export_material(m, tmp_path / "out", name="plastic")
     assert set(paths) == {"material", "mitsuba_xml", "mitsuba_json", "mitsuba_scene", "gltf", "gltf_asset", "readme"}
-    assert {p.name for p in paths.values()} == {FILES[k] for k in paths}
+    assert {p.name for p in paths.values()} == {FILES[k] for k in paths}  # an exact mapping: no table, no projection
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == sorted(FILES[k] for k in paths)  # no temp files
     doc = json.loads(paths["material"].read_text())
     assert from_json_dict(doc, source=str(paths["material"])) == m
@@ -170,30 +170,103 @@ def test_export_material_writes_every_file_for_a_native_model(tmp_path: Path) ->
     assert gltf["extras"]["projection_error"]["rms_rel"] == projection.rms_rel > 0
 
 
-def test_export_material_for_a_non_native_model_writes_the_stock_projection(tmp_path: Path) -> None:
+#: What a model without a native plugin adds to the native set: the table and both stock forms by name.
+NON_NATIVE_EXTRA = {"tabulated", "mitsuba_measured_xml", "mitsuba_measured_json", "mitsuba_projection_xml",
+                    "mitsuba_projection_json"}  # fmt: skip
+NATIVE_SET = {"material", "mitsuba_xml", "mitsuba_json", "mitsuba_scene", "gltf", "gltf_asset", "readme"}
+
+
+def test_export_material_for_a_non_native_model_writes_the_table_and_the_projection(tmp_path: Path) -> None:
     m = PLUGIN["phong"]
     paths = export_material(m, tmp_path, name="phong")
-    assert set(paths) == {"material", "mitsuba_xml", "mitsuba_json", "mitsuba_scene", "gltf", "gltf_asset", "readme"}
+    assert set(paths) == NATIVE_SET | NON_NATIVE_EXTRA
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(FILES[k] for k in paths)  # no temp files
     doc = json.loads(paths["material"].read_text())
-    assert doc["facts"]["mitsuba"] == {
-        "plugin": "gonio_model",
-        "native": False,
-        "note": "Python plugin: Mitsuba has no Phong plugin",
-    }
-    stock = doc["facts"]["mitsuba_stock"]
-    assert stock["plugin"] == "blendbsdf" and not stock["exact"]
+    facts = doc["facts"]
+    assert facts["mitsuba"] == {"plugin": "gonio_model", "native": False,
+                                "note": "Python plugin: Mitsuba has no Phong plugin"}  # fmt: skip
+    projection, table, stock = facts["mitsuba_projection"], facts["mitsuba_tabulated"], facts["mitsuba_stock"]
+    assert projection["plugin"] == "blendbsdf" and not projection["exact"]
+    native = from_json_dict(projection["native_model"])
+    # The projection is exactly the Mitsuba form of the fitted native model; nothing names gonio's plugin.
+    assert json.loads(paths["mitsuba_projection_json"].read_text()) == mitsuba_dict(native)
+    assert_matches(load_through_include(paths["mitsuba_projection_xml"], "phong"), native, NATIVE_REL_TOL)
+    # The default (auto) is the closer form: Phong's table, stated as Mitsuba measures it, against 124 %.
+    assert table["error"]["rms_rel"] < 0.05 < 1.0 < projection["error"]["rms_rel"]
+    assert stock["form"] == "tabulated" and stock["plugin"] == "measured" and stock["error"] == table["error"]
+    assert json.loads(paths["mitsuba_json"].read_text()) == {"type": "measured", "filename": "material.bsdf"}
+    assert paths["mitsuba_measured_json"].read_text() == paths["mitsuba_json"].read_text()
+    assert table["size_bytes"] == paths["tabulated"].stat().st_size and table["isotropic"]
+    for kind in ("mitsuba_xml", "mitsuba_measured_xml", "mitsuba_projection_xml"):
+        assert "gonio_model" not in paths[kind].read_text().split("-->")[-1]
+    xml = paths["mitsuba_xml"].read_text()
+    e = table["error"]
+    for figure in (f"{e['rms_rel']:.3%}", f"{e['rms_rel_cosine_weighted']:.3%}", f"{e['worst_rel']:.2%}"):
+        assert figure in xml and figure in paths["readme"].read_text()
+    assert f"{projection['error']['rms_rel']:.3%}" in paths["readme"].read_text()
+    assert f"{table['size_bytes'] / 1e6:.2f} MB" in xml
+    # Mitsuba finds the table through its file resolver, as the XML says: not from a scene elsewhere until the
+    # export directory is added; then its values are the model's, as stated.
+    with pytest.raises(RuntimeError, match=r'"material\.bsdf" does not exist'):
+        load_through_include(paths["mitsuba_xml"], "phong")
+    resolver = mi.FileResolver(mi.file_resolver())
+    try:
+        mi.file_resolver().prepend(str(tmp_path))
+        g = load_through_include(paths["mitsuba_xml"], "phong")
+    finally:
+        mi.set_file_resolver(resolver)
+    rng = np.random.default_rng(2)
+    wi = np.array([sph(t, p) for t, p in zip(rng.uniform(0, 80, 200), rng.uniform(-180, 180, 200), strict=True)])
+    wo = np.array([sph(t, p) for t, p in zip(rng.uniform(0, 80, 200), rng.uniform(-180, 180, 200), strict=True)])
+    got, want = mitsuba_eval_cos(g, f32(wi), f32(wo)), model_eval_cos(m, f32(wi), f32(wo))
+    assert float(np.sqrt(np.sum((got - want) ** 2) / np.sum(want**2))) < 0.05
+    # What the report page says beside each file: which form, and how far it is.
+    notes = export_notes(paths)
+    assert notes["mitsuba_xml"].startswith("stock Mitsuba 3, no gonio needed: the model tabulated for Mitsuba's")
+    assert f"{e['rms_rel']:.2%}" in notes["mitsuba_xml"] and f"{e['rms_rel']:.2%}" in notes["tabulated"]
+    assert f"{projection['error']['rms_rel']:.2%}" in notes["mitsuba_projection_xml"]
+    with_plugin = export_material(m, tmp_path / "with_plugin", name="phong", gonio_plugin=True)
+    assert_matches(load_through_include(with_plugin["mitsuba_plugin_xml"], "phong"), m, PLUGIN_REL_TOL)
+
+
+def test_the_projection_stays_the_default_on_request_and_a_bad_choice_is_refused(tmp_path: Path) -> None:
+    m = PLUGIN["phong"]
+    paths = export_material(m, tmp_path / "projected", name="phong", stock="projection")
+    stock = json.loads(paths["material"].read_text())["facts"]["mitsuba_stock"]
     native = from_json_dict(stock["native_model"])
-    # The stock BSDF is exactly the Mitsuba form of the fitted native model; nothing names gonio's plugin.
+    assert stock["form"] == "projection" and stock["plugin"] == "blendbsdf"
     assert json.loads(paths["mitsuba_json"].read_text()) == mitsuba_dict(native)
-    assert "gonio_model" not in paths["mitsuba_xml"].read_text().split("-->")[-1]
-    assert_matches(load_through_include(paths["mitsuba_xml"], "phong"), native, NATIVE_REL_TOL)
-    assert f"{stock['error']['rms_rel']:.3%}" in paths["readme"].read_text()
-    # What the report page says beside the file: for stock Mitsuba, a projection, and how far it is.
+    assert paths["mitsuba_xml"].read_text() == paths["mitsuba_projection_xml"].read_text()
+    assert "tabulated" in paths  # the table is there all the same, under its own name
+    assert "hold the projection (as asked: `--mitsuba-stock projection`)" in paths["readme"].read_text()
     assert export_notes(paths)["mitsuba_xml"] == (
         "stock Mitsuba 3, no gonio needed: nearest stock BSDF (blendbsdf), a projection, relative RMS BRDF "
         f"difference {stock['error']['rms_rel']:.2%}, evaluated by Mitsuba")
-    with_plugin = export_material(m, tmp_path / "with_plugin", name="phong", gonio_plugin=True)
-    assert_matches(load_through_include(with_plugin["mitsuba_plugin_xml"], "phong"), m, PLUGIN_REL_TOL)
+    with pytest.raises(ValueError, match="stock = 'tabular'; expected one of auto, tabulated, projection"):
+        export_material(m, tmp_path / "bad", stock="tabular")
+    assert not (tmp_path / "bad").exists()
+
+
+def test_a_model_that_cannot_be_tabulated_falls_back_to_the_projection_and_says_why(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import analysis.export_stock
+
+    def refuse(model: BRDF, *args: object, **kwargs: object) -> None:
+        raise ValueError(f"{type(model).__name__}: f_r is negative at some tabulated directions")
+
+    monkeypatch.setattr(analysis.export_stock, "tabulate", refuse)
+    m = PLUGIN["phong"]
+    paths = export_material(m, tmp_path / "auto", name="phong")
+    facts = json.loads(paths["material"].read_text())["facts"]
+    assert facts["mitsuba_stock"]["form"] == "projection" and "tabulated" not in paths
+    refusal = "Phong: f_r is negative at some tabulated directions"
+    assert facts["mitsuba_tabulated"] == {"file": None, "refusal": refusal}
+    readme = paths["readme"].read_text()
+    assert "Not written: Phong: f_r is negative" in readme and "the model could not be tabulated" in readme
+    with pytest.raises(ValueError, match="Phong: f_r is negative"):
+        export_material(m, tmp_path / "forced", stock="tabulated")
+    assert not (tmp_path / "forced").exists()
 
 
 def test_merl_export_reads_back_bin_by_bin(tmp_path: Path) -> None:
