@@ -232,8 +232,14 @@ class _Square:
         return np.asarray(np.outer(t, t) * 2.0 * np.pi**2 * ux * np.sin(_u2theta(ux)))
 
 
-def _sigma(d: Array, sq: _Square, w: Array) -> Array:
-    """Projected area sigma(w) = integral of D(m) max(0, w . m) over m, for directions w (..., 3)."""
+def _sigma(d: Array, sq: _Square, w: Array, isotropic: bool = False) -> Array:
+    """Projected area sigma(w) = integral of D(m) max(0, w . m) over m, for directions w (..., 3).
+
+    ``isotropic``: D and w on the square's nodes do not vary with azimuth (rows), so sigma is taken on the
+    first row and repeated: n instead of n^2 integrals of n^2 nodes (1.2 s of a 64-node export otherwise).
+    """
+    if isotropic:
+        return np.broadcast_to(_sigma(d, sq, w[:1]), w.shape[:-1]).copy()
     m, q = sq.m.reshape(-1, 3), (sq.weights * d).ravel()
     flat = w.reshape(-1, 3)
     out = np.concatenate([np.maximum(flat[i : i + 256] @ m.T, 0.0) @ q for i in range(0, len(flat), 256)])
@@ -265,9 +271,9 @@ def retro_ndf(model: BRDF, n: int, isotropic: bool) -> tuple[Array, Array]:
     else:
         peak = _normalise(excess * ct**2 + 1e-300, sq)
         for _ in range(NDF_ITERATIONS):
-            peak = _normalise(excess * ct * _sigma(peak, sq, sq.m) + 1e-300, sq)
+            peak = _normalise(excess * ct * _sigma(peak, sq, sq.m, isotropic) + 1e-300, sq)
     d = (1.0 - NDF_FLOOR_WEIGHT) * peak + NDF_FLOOR_WEIGHT * ggx
-    return d, _sigma(d, sq, sq.m)
+    return d, _sigma(d, sq, sq.m, isotropic)
 
 
 def _points(x: Array, y: Array) -> Any:

@@ -26,10 +26,13 @@ from model.mitsuba.tabulated import (
     Tabulated,
     TabulationGrid,
     _sample,
+    _sigma,
     _sph,
+    _Square,
     _u2phi,
     _u2theta,
     measured_bsdf,
+    retro_ndf,
     symmetry,
     tabulate,
     tabulated_error,
@@ -289,3 +292,11 @@ def test_a_model_that_cannot_be_tabulated_says_why() -> None:
         tabulate(Broken(0.0), LOW)
     with pytest.raises(ValueError, match=r"2 channels; an RGB \.bsdf file holds 1 or 3"):
         tabulate(Broken(0.1, channels=2), LOW)
+
+
+def test_an_isotropic_ndfs_projected_area_is_integrated_once_per_elevation() -> None:
+    # The shortcut must be the full integral at every node (to rounding), azimuths included.
+    model = CookTorrance(alpha=0.2, fresnel="schlick", f0=0.04, rho_d=(0.3, 0.2, 0.1))
+    d, sigma = retro_ndf(model, 24, isotropic=True)
+    square = _Square(24)
+    np.testing.assert_allclose(sigma, _sigma(d, square, square.m), rtol=1e-12, atol=0)
