@@ -33,10 +33,10 @@ def fork_safe() -> bool:
     numba_parallel = sys.modules.get("numba.np.ufunc.parallel")
     if numba_parallel is not None and getattr(numba_parallel, "_is_initialized", True):
         return False
-    from tqdm._monitor import TMonitor
-
     main = threading.main_thread()
-    return all(t is main or isinstance(t, TMonitor) for t in threading.enumerate())
+    monitor = sys.modules.get("tqdm._monitor")  # none runs unless tqdm is loaded (a quiet analysis never loads it)
+    tmonitor = getattr(monitor, "TMonitor", ()) if monitor is not None else ()
+    return all(t is main or isinstance(t, tmonitor) for t in threading.enumerate())
 
 
 def run_draws(draws: Sequence[Callable[[], Any]], jobs: int, done: Callable[[Any], None]) -> list[Any]:

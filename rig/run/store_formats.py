@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import OpenEXR
 
 Float32Array = npt.NDArray[np.float32]
 
@@ -87,6 +86,8 @@ def write_exr(path: Path, image: npt.ArrayLike, channels: Sequence[str], varianc
             raise ValueError("variance has negative values")
         for ch, plane in zip(names, _planes("variance", var, names), strict=True):
             pixels[ch + VARIANCE_SUFFIX] = plane
+    import OpenEXR  # here, not at the top: reading a run's table (gonio analyze) needs no image library
+
     header = {
         "compression": OpenEXR.ZIP_COMPRESSION,
         "type": OpenEXR.scanlineimage,
@@ -98,6 +99,8 @@ def write_exr(path: Path, image: npt.ArrayLike, channels: Sequence[str], varianc
 
 def read_exr(path: Path) -> tuple[Float32Array, Float32Array | None, list[str]]:
     """Read an image written by :func:`write_exr`: (image, variance or None, channel names)."""
+    import OpenEXR
+
     try:
         exr = OpenEXR.File(str(path), separate_channels=True)
     except RuntimeError as exc:
