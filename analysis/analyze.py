@@ -162,25 +162,36 @@ def write_report(
     MERL) and index.html; ``progress``: a bar with ETA over the figures; ``jobs``: processes drawing figures.
 
     ``mitsuba_plugin`` adds export/mitsuba_gonio_plugin.xml, the exact model for processes that have gonio.
+    With ``jobs`` > 1 the exports are made in a forked child while this process and ``jobs`` - 1 workers draw the
+    figures (analysis/figure_pool.py, where it is safe); the files are the same bytes either way.
     """
-    from analysis.report_html import write_html
-    from analysis.report_plots import write_figures
+    from analysis.figure_pool import ForkedCall
 
     say = log or (lambda _: None)
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise AnalysisError(f"--out {out}: exists and is not a directory")
-    say(f"writing figures to {out / 'figures'}")
-    figures = write_figures(a, out / "figures", y_scale=y_scale, log=say, svg=svg, progress=progress, jobs=jobs)
     text = json.dumps(fit_json(a), indent=2, allow_nan=False) + "\n"
     write_atomic(out / "fit.json", lambda tmp: tmp.write_text(text, encoding="utf-8"))
     say(f"wrote {out / 'fit.json'}")
     say(f"exporting the chosen model to {out / 'export'}" + (" (with a 35 MB MERL table)" if merl else ""))
-    # Imported only now: it loads Mitsuba, whose threads would keep the figures from being drawn in forked workers.
-    from analysis.export import export_material, export_notes
 
-    exports = export_material(a.selection.chosen.model, out / "export", merl=merl, gonio_plugin=mitsuba_plugin)
-    return write_html(a, figures, out / "index.html", exports, notes=export_notes(exports))
+    def export() -> tuple[dict[str, Path], dict[str, str]]:
+        # Imported only here: it loads Mitsuba, whose threads would keep figures from being drawn in forked workers.
+        from analysis.export import export_material, export_notes
+
+        paths = export_material(a.selection.chosen.model, out / "export", merl=merl, gonio_plugin=mitsuba_plugin)
+        return paths, export_notes(paths)
+
+    # Forked before matplotlib loads here (the page's module loads it too), so both load side by side.
+    with ForkedCall(export, fork=jobs > 1) as exporting:
+        from analysis.report_html import write_html
+        from analysis.report_plots import write_figures
+
+        say(f"writing figures to {out / 'figures'}")
+        figures = write_figures(a, out / "figures", y_scale=y_scale, log=say, svg=svg, progress=progress, jobs=jobs)
+        exports, notes = exporting.result()  # here and now, after the figures, when it was not forked
+    return write_html(a, figures, out / "index.html", exports, notes=notes)
 
 
 def analyze(
