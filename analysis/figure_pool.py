@@ -138,17 +138,19 @@ class ForkedCall:
     """``fn()`` begun in a forked child when ``fork`` is asked and safe (else run by :meth:`result`, here, then).
 
     The child's result (or exception) comes back pickled. A child that dies without a word (a signal, out of
-    memory) has its call run again here: gonio's writers are atomic, so what it left is whole or absent.
+    memory) has its call (or ``fallback``) run again here: gonio's writers are atomic, so what it left is whole or
+    absent.
     """
 
-    def __init__(self, fn: Callable[[], Any], fork: bool) -> None:
+    def __init__(self, fn: Callable[[], Any], fork: bool, fallback: Callable[[], Any] | None = None) -> None:
         self._fn = fn
+        self._fallback = fallback or fn
         self._proc: Any = None
         self._conn: Connection | None = None
         if fork and fork_safe():
             ctx = multiprocessing.get_context("fork")
             self._conn, child = ctx.Pipe(duplex=False)
-            self._proc = ctx.Process(target=_call_child, args=(fn, child), daemon=True, name="gonio-forked-call")
+            self._proc = ctx.Process(target=_call_child, args=(fn, child), name="gonio-forked-call")
             self._proc.start()
             child.close()
 
@@ -168,7 +170,7 @@ class ForkedCall:
         finally:
             self.close()
         if answer is None:
-            return self._fn()
+            return self._fallback()
         ok, value = answer
         if not ok:
             raise value
@@ -187,6 +189,85 @@ class ForkedCall:
             self._conn = None
 
     def __enter__(self) -> ForkedCall:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class Standby:
+    """A process forked early, which loads what its work will need (``prepare``) while this one goes on, then runs
+    the one call :meth:`run` hands it (cloudpickled: it may close over anything) and hands back its result.
+
+    ``gonio analyze`` forks one before it fits, to load matplotlib and the report's modules on the second core while
+    this process loads scipy and fits; the figures are then drawn there while this process exports. Where forking
+    is not safe, or the call cannot be pickled, :meth:`result` makes the call here.
+    """
+
+    def __init__(self, prepare: Callable[[], None]) -> None:
+        self._fn: Callable[[], Any] | None = None
+        self._send: Connection | None = None
+        self._call: ForkedCall | None = None
+        if not fork_safe():
+            return
+        recv, self._send = multiprocessing.get_context("fork").Pipe(duplex=False)
+
+        def wait_and_run() -> Any:
+            prepare()
+            try:
+                job = recv.recv_bytes()
+            except EOFError:  # closed without work: nothing to do
+                return None
+            import pickle
+
+            return pickle.loads(job)()
+
+        self._call = ForkedCall(wait_and_run, fork=True, fallback=self._run_here)
+        recv.close()
+
+    def _run_here(self) -> Any:
+        if self._fn is None:
+            raise RuntimeError("Standby: no call was handed over")
+        return self._fn()
+
+    @property
+    def forked(self) -> bool:
+        """Whether the standby process exists (it may still be loading)."""
+        return self._call is not None and self._call.forked
+
+    def run(self, fn: Callable[[], Any]) -> None:
+        """Hand ``fn`` to the standby process (or keep it for :meth:`result` to call here)."""
+        self._fn = fn
+        if self._send is None or not self.forked:
+            return
+        import cloudpickle  # Dask's, a dependency: plain pickle refuses the fit specs' closures
+
+        try:
+            job = cloudpickle.dumps(fn)
+        except Exception:  # something in fn does not pickle: draw here instead
+            self.close()
+            return
+        self._send.send_bytes(job)
+
+    def result(self) -> Any:
+        """What the handed call returned (raising its exception here)."""
+        if self._call is None:
+            return self._run_here()
+        try:
+            return self._call.result()
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        """Release the standby (it ends once it sees no work is coming)."""
+        if self._send is not None:
+            self._send.close()
+            self._send = None
+        if self._call is not None:
+            self._call.close()
+            self._call = None
+
+    def __enter__(self) -> Standby:
         return self
 
     def __exit__(self, *exc: object) -> None:

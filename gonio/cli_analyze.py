@@ -16,6 +16,7 @@ directory holding other files, not an analysis, gets the report written into it,
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 from pathlib import Path
@@ -69,7 +70,7 @@ def _previous(fit: Path) -> str:
 
 
 def _analyze(args: argparse.Namespace) -> int:
-    from analysis.analyze import default_out, load_and_fit, stderr_log, write_report
+    from analysis.analyze import default_out, figure_standby, load_and_fit, stderr_log, write_report
     from analysis.batch.records import staged_dir
     from analysis.ladder import parse_models
 
@@ -77,18 +78,20 @@ def _analyze(args: argparse.Namespace) -> int:
     models = parse_models(args.models) if args.models else None
     out = Path(args.out) if args.out else default_out(args.source)
     whole = _whole(out, args.force)  # before the fit: a refusal should not cost minutes
-    a = load_and_fit(args.source, models=models, loss=args.loss, starts=args.starts, samples=args.samples,
-                     seed=args.seed, compare=args.compare, log=log, errors=args.errors,
-                     progress=not args.quiet)  # fmt: skip
-    options = {"y_scale": args.y_scale, "merl": args.merl, "mitsuba_plugin": args.mitsuba_plugin, "svg": args.svg,
-               "progress": not args.quiet, "jobs": args.jobs}  # fmt: skip
-    if not whole:
-        page = write_report(a, out, log=log, **options)
-    else:
-        with staged_dir(out) as tmp:
-            # The progress lines name where the files will be, not the temporary directory they are written in.
-            shown = None if log is None else (lambda line: stderr_log(line.replace(str(tmp), str(out))))
-            page = out / write_report(a, tmp, log=shown, **options).relative_to(tmp)
+    # Forked before the fit, so matplotlib loads on another core while this process loads scipy and fits.
+    with figure_standby(args.jobs) or contextlib.nullcontext() as standby:
+        a = load_and_fit(args.source, models=models, loss=args.loss, starts=args.starts, samples=args.samples,
+                         seed=args.seed, compare=args.compare, log=log, errors=args.errors,
+                         progress=not args.quiet)  # fmt: skip
+        options = {"y_scale": args.y_scale, "merl": args.merl, "mitsuba_plugin": args.mitsuba_plugin,
+                   "svg": args.svg, "progress": not args.quiet, "jobs": args.jobs, "standby": standby}  # fmt: skip
+        if not whole:
+            page = write_report(a, out, log=log, **options)
+        else:
+            with staged_dir(out) as tmp:
+                # The progress lines name where the files will be, not the temporary directory they are written in.
+                shown = None if log is None else (lambda line: stderr_log(line.replace(str(tmp), str(out))))
+                page = out / write_report(a, tmp, log=shown, **options).relative_to(tmp)
     print(page)
     print(a.text())
     return EXIT_OK

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from analysis.figure_pool import ForkedCall
+from analysis.figure_pool import ForkedCall, Standby
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Modules an analysis of an existing table has no use for before it draws or exports: the measuring side of a run
@@ -62,7 +62,7 @@ np.testing.assert_array_equal(m.eval(v[0], v[1]), Model.eval(m, v[0], v[1]))
 
 FORKED = """
 import os, sys
-from analysis.figure_pool import ForkedCall
+from analysis.figure_pool import ForkedCall, Standby
 parent = os.getpid()
 with ForkedCall(lambda: (os.getpid(), sorted(range(5))), fork=True) as call:
     assert call.forked
@@ -80,11 +80,21 @@ with ForkedCall(fail, fork=True) as call:
 # A child that dies without answering: the call is made here instead.
 with ForkedCall(lambda: os._exit(3) if os.getpid() != parent else "done here", fork=True) as call:
     assert call.result() == "done here"
+# A standby loads first, then runs a call it is handed later: a closure plain pickle refuses (cloudpickle does not).
+from analysis.figure_pool import Standby
+with Standby(lambda: os.environ.__setitem__("PREPARED_IN", str(os.getpid()))) as standby:
+    assert standby.forked
+    scale = 3
+    standby.run(lambda: (os.environ.get("PREPARED_IN"), os.getpid(), [scale * i for i in range(3)]))
+    prepared_in, ran_in, value = standby.result()
+assert prepared_in == str(ran_in) and ran_in != parent and value == [0, 3, 6] and "PREPARED_IN" not in os.environ
+with Standby(lambda: None) as standby:
+    pass  # closed without work: the standby ends by itself
 print("ok")
 """
 
 
-def test_a_forked_call_returns_its_result_raises_its_error_and_survives_a_dead_child() -> None:
+def test_forked_calls_return_their_result_raise_their_error_and_survive_a_dead_child() -> None:
     done = subprocess.run([sys.executable, "-c", FORKED], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
 
@@ -104,3 +114,14 @@ def test_a_forked_call_runs_here_when_forking_is_not_safe() -> None:
         assert not call.forked and call.result() == os.getpid()
     with pytest.raises(ZeroDivisionError), ForkedCall(lambda: 1 / 0, fork=False) as call:
         call.result()
+    stop.clear()
+    other = threading.Thread(target=stop.wait)
+    other.start()
+    try:
+        with Standby(lambda: None) as standby:
+            assert not standby.forked
+            standby.run(os.getpid)
+            assert standby.result() == os.getpid()
+    finally:
+        stop.set()
+        other.join()
