@@ -33,10 +33,11 @@ FORMS: tuple[str, ...] = ("walter", "cook_torrance_1982")
 #: Smallest batch (direction pairs) evaluated by the numba kernel in model.kernels; both paths agree
 #: bit for bit in float64 (tests/model/test_kernels.py), so this only trades speed.
 KERNEL_MIN_PAIRS = 4096
-#: Pairs numpy evaluates in a process before the first large batch loads numba for the kernel. Loading numba
-#: and a cached kernel costs about 0.8 CPU s (measured on the 2-core EPYC VM), what numpy takes for about a
-#: million GGX pairs: a one-off analysis (some 10^5 pairs, gonio analyze) never pays it, while a long fit or a
-#: render pays it within its first second of numpy. Where numba is loaded already, the kernel is used at once.
+#: Pairs numpy evaluates in a process without numba before the first large batch loads it for the kernel.
+#: Importing numba and loading a cached kernel costs about 0.8 CPU s (measured on the 2-core EPYC VM), what numpy
+#: takes for about a million GGX pairs: a one-off analysis (some 10^5 pairs, gonio analyze) never pays it, while a
+#: long fit or a render pays it within its first second of numpy. Where numba is imported already (a run's HDR
+#: merge, the benchmarks), the kernel is used at once.
 KERNEL_LOAD_PAIRS = 1_000_000
 _numpy_pairs = 0
 
@@ -44,7 +45,7 @@ _numpy_pairs = 0
 def _kernel_worth_loading(pairs: int) -> bool:
     """Whether a batch of ``pairs`` (>= KERNEL_MIN_PAIRS) goes to the kernel (see KERNEL_LOAD_PAIRS)."""
     global _numpy_pairs
-    if "model.kernels" in sys.modules:
+    if "numba" in sys.modules:
         return True
     _numpy_pairs += pairs
     return _numpy_pairs > KERNEL_LOAD_PAIRS
