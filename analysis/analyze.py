@@ -168,8 +168,8 @@ def write_report(
 
     ``mitsuba_plugin`` adds export/mitsuba_gonio_plugin.xml, the exact model for processes that have gonio.
     With ``jobs`` > 1 the figures and the exports are made side by side (analysis/figure_pool.py, where it is
-    safe): the figures in ``standby`` (a process started before the fit with matplotlib loaded,
-    :func:`figure_standby`) while the exports are made here, or else the exports in a forked child while the
+    safe): the figures in ``standby`` (a process forked before the fit that loads matplotlib meanwhile, as
+    ``gonio analyze`` starts one) while the exports are made here, or else the exports in a forked child while the
     figures are drawn here and in ``jobs`` - 1 workers. The files are the same bytes either way.
     """
     from analysis.figure_pool import ForkedCall
@@ -210,18 +210,6 @@ def write_report(
     from analysis.report_html import write_html
 
     return write_html(a, figures, out / "index.html", exports, notes=notes)
-
-
-def _figure_modules() -> None:
-    import analysis.report_html
-    import analysis.report_plots  # noqa: F401  (matplotlib and every figure's module)
-
-
-def figure_standby(jobs: int) -> Standby | None:
-    """A process forked now that loads matplotlib and the report's modules while this one fits (``jobs`` > 1)."""
-    from analysis.figure_pool import Standby
-
-    return Standby(_figure_modules) if jobs > 1 else None
 
 
 def analyze(

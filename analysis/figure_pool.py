@@ -176,10 +176,10 @@ class ForkedCall:
             raise value
         return value
 
-    def close(self) -> None:
-        """Wait for the child to end (ending it if it does not) and release the pipe."""
+    def close(self, wait: bool = True) -> None:
+        """Wait for the child to end (ending it if it does not, or at once unless ``wait``), release the pipe."""
         if self._proc is not None:
-            self._proc.join(timeout=1.0)
+            self._proc.join(timeout=1.0 if wait else 0.0)
             if self._proc.is_alive():
                 self._proc.terminate()
                 self._proc.join()
@@ -264,7 +264,7 @@ class Standby:
             self._send.close()
             self._send = None
         if self._call is not None:
-            self._call.close()
+            self._call.close(wait=self._fn is not None)  # with no work handed over it is only loading: end it
             self._call = None
 
     def __enter__(self) -> Standby:

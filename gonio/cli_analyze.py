@@ -20,9 +20,13 @@ import contextlib
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from gonio.cli_errors import CliError
 from gonio.cli_run import EXIT_OK
+
+if TYPE_CHECKING:
+    from analysis.figure_pool import Standby
 
 _MODELS_HELP = ("lambert, lambert_ggx (dielectric), lambert_ggx_schlick, ggx_conductor, ggx_conductor_lambert, "
                 "blinn_phong, ward (anisotropic)")  # fmt: skip
@@ -69,8 +73,22 @@ def _previous(fit: Path) -> str:
         return "its fit.json is unreadable"
 
 
+def _figure_modules() -> None:
+    import analysis.report_html
+    import analysis.report_plots  # noqa: F401  (matplotlib, scipy and every figure's module)
+
+
 def _analyze(args: argparse.Namespace) -> int:
-    from analysis.analyze import default_out, figure_standby, load_and_fit, stderr_log, write_report
+    from analysis.figure_pool import Standby
+
+    # Forked first, with little loaded: the figures' process loads scipy and matplotlib on the second core while
+    # this one loads scipy and fits; it draws once the fit is handed to it (write_report).
+    with Standby(_figure_modules) if args.jobs > 1 else contextlib.nullcontext() as standby:
+        return _analyze_with(args, standby)
+
+
+def _analyze_with(args: argparse.Namespace, standby: Standby | None) -> int:
+    from analysis.analyze import default_out, load_and_fit, stderr_log, write_report
     from analysis.batch.records import staged_dir
     from analysis.ladder import parse_models
 
@@ -78,20 +96,18 @@ def _analyze(args: argparse.Namespace) -> int:
     models = parse_models(args.models) if args.models else None
     out = Path(args.out) if args.out else default_out(args.source)
     whole = _whole(out, args.force)  # before the fit: a refusal should not cost minutes
-    # Forked before the fit, so matplotlib loads on another core while this process loads scipy and fits.
-    with figure_standby(args.jobs) or contextlib.nullcontext() as standby:
-        a = load_and_fit(args.source, models=models, loss=args.loss, starts=args.starts, samples=args.samples,
-                         seed=args.seed, compare=args.compare, log=log, errors=args.errors,
-                         progress=not args.quiet)  # fmt: skip
-        options = {"y_scale": args.y_scale, "merl": args.merl, "mitsuba_plugin": args.mitsuba_plugin,
-                   "svg": args.svg, "progress": not args.quiet, "jobs": args.jobs, "standby": standby}  # fmt: skip
-        if not whole:
-            page = write_report(a, out, log=log, **options)
-        else:
-            with staged_dir(out) as tmp:
-                # The progress lines name where the files will be, not the temporary directory they are written in.
-                shown = None if log is None else (lambda line: stderr_log(line.replace(str(tmp), str(out))))
-                page = out / write_report(a, tmp, log=shown, **options).relative_to(tmp)
+    a = load_and_fit(args.source, models=models, loss=args.loss, starts=args.starts, samples=args.samples,
+                     seed=args.seed, compare=args.compare, log=log, errors=args.errors,
+                     progress=not args.quiet)  # fmt: skip
+    options = {"y_scale": args.y_scale, "merl": args.merl, "mitsuba_plugin": args.mitsuba_plugin,
+               "svg": args.svg, "progress": not args.quiet, "jobs": args.jobs, "standby": standby}  # fmt: skip
+    if not whole:
+        page = write_report(a, out, log=log, **options)
+    else:
+        with staged_dir(out) as tmp:
+            # The progress lines name where the files will be, not the temporary directory they are written in.
+            shown = None if log is None else (lambda line: stderr_log(line.replace(str(tmp), str(out))))
+            page = out / write_report(a, tmp, log=shown, **options).relative_to(tmp)
     print(page)
     print(a.text())
     return EXIT_OK
