@@ -120,16 +120,26 @@ def run_draws(draws: Sequence[Callable[[], Any]], jobs: int, done: Callable[[Any
         return pending.finish(done)
 
 
-def _call_child(fn: Callable[[], Any], conn: Connection) -> None:
+def _ended(*_: object) -> None:
+    raise SystemExit(1)  # unwinds the call, so a pool it runs is shut down and its workers end with it
+
+
+def _call_child(fn: Callable[[], Any], conn: Connection, parents: Connection) -> None:
+    parents.close()  # the parent's end: with it closed here, a parent that dies breaks the pipe, never blocks it
     # Ctrl-C reaches the whole process group: the parent handles it (and ends this child), not a second traceback.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _ended)
     try:
-        conn.send((True, fn()))
+        answer: tuple[bool, Any] = (True, fn())
     except BaseException as exc:  # handed to the parent, which raises it
+        answer = (False, exc)
+    try:
         try:
-            conn.send((False, exc))
+            conn.send(answer)
+        except (BrokenPipeError, OSError):
+            pass  # the parent has gone or given up: nobody to tell
         except Exception:  # an exception that does not pickle: its type and message
-            conn.send((False, RuntimeError(f"{type(exc).__name__}: {exc}")))
+            conn.send((False, RuntimeError(f"{type(answer[1]).__name__}: {answer[1]}")))
     finally:
         conn.close()
 
@@ -150,7 +160,7 @@ class ForkedCall:
         if fork and fork_safe():
             ctx = multiprocessing.get_context("fork")
             self._conn, child = ctx.Pipe(duplex=False)
-            self._proc = ctx.Process(target=_call_child, args=(fn, child), name="gonio-forked-call")
+            self._proc = ctx.Process(target=_call_child, args=(fn, child, self._conn), name="gonio-forked-call")
             self._proc.start()
             child.close()
 
@@ -210,9 +220,11 @@ class Standby:
         self._call: ForkedCall | None = None
         if not fork_safe():
             return
-        recv, self._send = multiprocessing.get_context("fork").Pipe(duplex=False)
+        recv, send = multiprocessing.get_context("fork").Pipe(duplex=False)
+        self._send = send
 
         def wait_and_run() -> Any:
+            send.close()  # this end is the parent's: closed here, the parent's close() reads as "no work" (EOF)
             prepare()
             try:
                 job = recv.recv_bytes()
