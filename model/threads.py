@@ -13,12 +13,18 @@ environment already does (that always wins):
 
 - ``OMP_WAIT_POLICY=PASSIVE`` (libgomp's spin count 0; ``KMP_BLOCKTIME=0`` for Intel's runtime): read
   when the runtime loads, which is numba's first parallel launch, so the lazily imported numba kernels
-  always see it. numba keeps one thread per core and its own layer order (tbb, omp, workqueue; the
-  workqueue layer waits on a condition variable, it does not spin).
+  always see it. numba keeps one thread per core (fewer under ``OMP_NUM_THREADS``, below) and its own
+  layer order (tbb, omp, workqueue; the workqueue layer waits on a condition variable, it does not spin).
 - ``OPENBLAS_NUM_THREADS=1`` for the BLAS libraries loaded later (scipy's own OpenBLAS loads with
   ``scipy.linalg``), and the same limit through threadpoolctl on those already loaded (numpy's, if
   numpy came first): gonio's linear algebra is small (fits, calibrations), where a second thread costs
   more in wake-ups than it gains.
+
+- ``NUMBA_NUM_THREADS`` from ``OMP_NUM_THREADS`` where only the latter is set, and Dr.Jit's pool to the
+  same count (:func:`drjit_thread_budget`, applied where gonio loads Mitsuba): ``OMP_NUM_THREADS`` is the
+  usual way to give a process its share of the cores, and Dask's nanny sets it to 1 in every worker it
+  starts, but numba and Dr.Jit size their pools by the core count and ignore it. Two single-threaded Dask
+  workers on 2 cores then ran 2 numba and 2 Dr.Jit threads each: 8 threads taking turns on 2 cores.
 
 Subprocesses (dask workers, ``gonio`` commands run by tests) inherit the environment, hence the policy.
 """
@@ -43,12 +49,27 @@ def apply_thread_policy() -> None:
     _state["user_set"] = sorted(k for k in POLICY_ENV if k in os.environ)
     for key, value in POLICY_ENV.items():
         os.environ.setdefault(key, value)
+    budget = _int_env("OMP_NUM_THREADS")
+    if budget is not None and "NUMBA_NUM_THREADS" not in os.environ:
+        # Read when numba.core.config is imported; numba imported earlier keeps its pool.
+        os.environ["NUMBA_NUM_THREADS"] = str(budget)
     blas_threads = _int_env("OPENBLAS_NUM_THREADS")
     if blas_threads is not None:
         from threadpoolctl import threadpool_limits
 
         # Applied for good (not as a context): the returned object would only restore the old limits.
         threadpool_limits(limits=blas_threads, user_api="blas")
+
+
+def drjit_thread_budget() -> int | None:
+    """Cap Dr.Jit's thread pool at ``OMP_NUM_THREADS`` where that is set; the cap (threads) or None."""
+    budget = _int_env("OMP_NUM_THREADS")
+    if budget is not None:
+        import drjit as dr
+
+        if dr.thread_count() > budget:
+            dr.set_thread_count(budget)
+    return budget
 
 
 def thread_policy_info() -> dict[str, Any]:

@@ -10,7 +10,6 @@ from rig.instrument.alignment import Alignment
 from rig.run.config import ConfigError, RigConfig, material_from
 from rig.run.config_schema import Misalignment
 from simulator.camera.pixels import PixelResponse
-from simulator.grbl_rig import SimulatedGrblRig
 from simulator.render.spec import CameraSpec, LightSpec
 from simulator.rig import SimRigSpec, SimulatedRig
 
@@ -72,5 +71,9 @@ def rig_from(
 
     ``spec`` replaces ``spec_from(rig)`` (a test's variation of it); ``start`` is where the axes stand (degrees).
     """
-    cls = SimulatedGrblRig if rig.file.simulation.link == "grbl" else SimulatedRig
+    cls: type[SimulatedRig] = SimulatedRig
+    if rig.file.simulation.link == "grbl":
+        from simulator.grbl_rig import SimulatedGrblRig  # here: a servo rig's run need not wait for GRBL's modules
+
+        cls = SimulatedGrblRig
     return cls(spec if spec is not None else spec_from(rig), start=start)

@@ -162,8 +162,8 @@ def plan_exposure(
         expected_pixel = worst(frames)[0]
 
     exposures = tuple(sorted(t for t, k in frames.items() for _ in range(k)))
-    plan = evaluate_plan(levels, noise, exposures, cam, target_snr=target, pixel_snr_target=pixel_snr_target,
-                         dark_frames=dark_frames)
+    # The evaluation's own pixel SNR and verdict are replaced below, so it need not work them out.
+    plan = _evaluate(levels, noise, exposures, cam, target, pixel_snr_target, dark_frames, pixel=False)
     clip_peak = any((lv.peak_dn_per_s * gain + dr) * t > sat for lv in levels for t in frames)
     if clip_peak and not all(lv.rates_dn_per_s for lv in levels):
         notes.append("expected_snr is a lower bound: no pixel distribution given, frames clipping the peak not counted")
@@ -303,8 +303,15 @@ def evaluate_plan(
     Used for fixed brackets and for checking a plan; ``reached`` compares against ``target_snr`` (False for
     NaN). Exposures are taken as given (not quantised to the camera's steps).
     """
-    cam = camera or CameraTiming()
     levels = [level] if isinstance(level, RoiLevel) else list(level)
+    return _evaluate(levels, noise, exposures_s, camera or CameraTiming(), target_snr, pixel_snr_target, dark_frames)
+
+
+def _evaluate(
+    levels: Sequence[RoiLevel], noise: SensorNoise, exposures_s: Sequence[float], cam: CameraTiming,
+    target_snr: float, pixel_snr_target: float | None, dark_frames: int, *, pixel: bool = True,
+) -> ExposurePlan:
+    """``evaluate_plan``; without ``pixel`` the per-pixel SNR is left out (None) and ``reached`` ignores it."""
     if not exposures_s or not all(math.isfinite(t) and t > 0 for t in exposures_s):
         raise ValueError(f"evaluate_plan: exposures_s = {tuple(exposures_s)!r}: expected positive seconds")
     gain = cam.gain
@@ -319,7 +326,7 @@ def evaluate_plan(
     if margin < 1:
         notes.append(f"ROI peak clips in every frame (margin {margin:.3g}): the reading would be a lower bound")
     px: float | None = None
-    if all(lv.dark_dn_per_s is not None for lv in levels):
+    if pixel and all(lv.dark_dn_per_s is not None for lv in levels):
         grid = _pixel_grid(levels, list(frames), sat, dr, gain)
         px = float(np.min(pixel_snr(grid, noise, exposures, gain, dark_frames))) if grid.size else None
     reached = snr >= target_snr and (pixel_snr_target is None or (px is not None and px >= pixel_snr_target))

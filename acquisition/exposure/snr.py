@@ -147,13 +147,16 @@ def _pixel_grid(
     """Rates (counts/s) at which the per-pixel SNR is checked: log-spaced from dark to peak, plus every rate
     just too bright for a candidate exposure (the worst pixels of a bracket)."""
     pts: list[float] = []
+    spaced: dict[tuple[float, float], list[float]] = {}  # colour channels mostly share their dark and peak
     for lv in levels:
         lo = float(lv.dark_dn_per_s or 0.0)
         hi = lv.peak_dn_per_s
         if hi <= 0:
             continue
         lo = max(lo, hi * 1e-9)
-        pts.extend(np.geomspace(lo, hi, 48).tolist())
+        if (lo, hi) not in spaced:
+            spaced[lo, hi] = np.geomspace(lo, hi, 48).tolist()
+        pts.extend(spaced[lo, hi])
         for t in candidates:
             r = (sat / t - dark_rate) / gain
             if lo < r * (1 + 1e-9) < hi:

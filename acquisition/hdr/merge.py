@@ -67,7 +67,7 @@ from __future__ import annotations
 import enum
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, Literal
 
 import numpy as np
@@ -260,12 +260,13 @@ def merge_linear(
     )
 
     reason = "forced"
+    first: tuple[F32, F32, npt.NDArray[np.uint8], npt.NDArray[np.uint8]] | None = None
     if weighting == "auto":
-        use_iv, reason = _decide_weighting(prep)
+        use_iv, reason, first = _decide_weighting(prep)
     else:
         use_iv = weighting == "inverse_variance"
     shape = frames[0].shape
-    rad, var, flags, used = prep.run(False)
+    rad, var, flags, used = first if first is not None else prep.run(False)
     if use_iv:
         step = 2 if kind == "raw" or frames[0].cfa_pattern else 1
         signal = neighbour_mean(rad.reshape(shape).astype(np.float64), step).reshape(-1)
@@ -293,7 +294,7 @@ def merge_linear(
             "none: black level subtracted, dark current not removed (dim pixels read high by "
             "dark_current_e_per_s * t / e_per_dn counts)" if no_darks else tuple(dark_notes)
         ),
-        "noise": asdict(noise),
+        "noise": {f.name: getattr(noise, f.name) for f in fields(noise)},  # asdict's deep copy, without copying
     }
     return HdrImage(
         radiance=rad.reshape(shape), variance=var.reshape(shape), flags=flags.reshape(shape),
@@ -323,18 +324,28 @@ def neighbour_mean(image: npt.NDArray[np.float64], step: int = 1) -> npt.NDArray
     return out
 
 
-def _decide_weighting(prep: _Prepared) -> tuple[bool, str]:
-    """Auto weighting: would the inverse-variance pass lower the standard error enough, on a pixel sample?"""
-    sample = prep.subsample(max(1, prep.data[0].size // IV_SAMPLE))
-    _, var_sum, flags, _ = sample.run(False)
-    _, var_iv, _, _ = sample.run(True)
+def _decide_weighting(
+    prep: _Prepared,
+) -> tuple[bool, str, tuple[F32, F32, npt.NDArray[np.uint8], npt.NDArray[np.uint8]] | None]:
+    """Auto weighting: would the inverse-variance pass lower the standard error enough, on a pixel sample?
+
+    Also returns the sample's sum pass when the sample is every pixel (a small image): the merge's own.
+    """
+    stride = max(1, prep.data[0].size // IV_SAMPLE)
+    sample = prep.subsample(stride) if stride > 1 else prep  # every pixel: the arrays as they are
+    first = sample.run(False)
+    _, var_sum, flags, _ = first
+    # The inverse-variance prediction weights by the sum pass: the one just taken, not a second run of it.
+    _, var_iv, _, _ = sample.run(True, first[0].astype(np.float64))
+    whole = first if stride == 1 else None
     ok = flags == 0
     if not ok.any():
-        return False, "auto: no unflagged pixel in the sample"
+        return False, "auto: no unflagged pixel in the sample", whole
     gain = np.sqrt(var_sum[ok].astype(np.float64) / var_iv[ok]) - 1.0
     fraction = float(np.mean(gain > IV_GAIN))
     verdict = fraction >= IV_FRACTION
-    return verdict, (
+    reason = (
         f"auto: the inverse-variance pass lowers the standard error by > {IV_GAIN:.0%} for {fraction:.2%} of "
         f"{int(ok.sum())} sampled pixels (threshold {IV_FRACTION:.0%}); max gain {float(gain.max()):.2%}"
     )
+    return verdict, reason, whole

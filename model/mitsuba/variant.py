@@ -28,6 +28,10 @@ from collections.abc import Iterator
 import drjit as dr
 import mitsuba as mi
 
+from model.threads import drjit_thread_budget
+
+drjit_thread_budget()  # a Dask worker's OMP_NUM_THREADS=1 holds for Dr.Jit's pool too
+
 ENV_VAR = "GONIO_MITSUBA_VARIANT"
 #: Backends tried by :func:`pick_variant`, fastest first.
 BACKENDS: tuple[str, ...] = ("llvm_ad", "scalar")

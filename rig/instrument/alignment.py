@@ -70,7 +70,7 @@ class Alignment:
     @property
     def is_zero(self) -> bool:
         """True for the drawn rig (no imperfection at all)."""
-        return self == Alignment()
+        return self == _DRAWN
 
     def zero_of(self, joint: str) -> float:
         """The zero offset of a joint in degrees."""
@@ -93,6 +93,10 @@ PARAMETERS: dict[str, tuple[str, ...]] = {
     "in_plane": (*ZEROS, *OFFSET),
     "fixed_camera": ("light_zero_deg", "yaw_zero_deg", "tilt_zero_deg", "roll_zero_deg", *WEDGE, *OFFSET),
 }
+
+
+#: The drawn rig, built once: ``is_zero`` runs for every forward kinematics call.
+_DRAWN = Alignment()
 
 
 def alignment_of(names: Sequence[str], values: npt.ArrayLike) -> Alignment:

@@ -23,12 +23,15 @@ import numpy.typing as npt
 from rig.instrument.alignment import Alignment, aligned_forward, alignment_of, parameters_of
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints
+from rig.instrument.kinematics_types import Directions
 
 FloatArray = npt.NDArray[np.float64]
 
 
-def _features(geometry: RigGeometry, joints: Joints, alignment: Alignment) -> tuple[FloatArray, FloatArray]:
-    d = aligned_forward(geometry, joints, alignment)
+def _features(
+    geometry: RigGeometry, joints: Joints, alignment: Alignment, measured: Directions | None = None
+) -> tuple[FloatArray, FloatArray]:
+    d = measured if measured is not None else aligned_forward(geometry, joints, alignment)
     angles = np.array([d.theta_i, d.phi_i, d.theta_o, d.phi_o], dtype=np.float64)
     tangent = np.array([d.wi[0], d.wi[1], d.wo[0], d.wo[1]], dtype=np.float64)
     return angles, tangent
@@ -58,14 +61,20 @@ def direction_covariances(
     calibration_covariance: npt.ArrayLike | None = None,
     *,
     step_deg: float = 1e-4,
+    measured: Directions | None = None,
 ) -> tuple[FloatArray, FloatArray]:
-    """(angle covariance (4, 4) deg^2, tangent covariance (4, 4)) of one pose's measured directions."""
+    """(angle covariance (4, 4) deg^2, tangent covariance (4, 4)) of one pose's measured directions.
+
+    ``measured``: ``aligned_forward`` of these joints where the caller has it already (the runner does).
+    """
     values = {k: float(v) for k, v in joints.as_dict().items()}
-    base = _features(geometry, joints, alignment)[0]
+    names = tuple(calibration_names)
+    moving = [(n, v) for n, v in joint_variance_deg2.items() if n in values and v > 0]
+    if not moving and not (names and calibration_covariance is not None):
+        return np.zeros((4, 4)), np.zeros((4, 4))  # nothing uncertain: no slope to take
+    base = _features(geometry, joints, alignment, measured)[0]
     jac_a, jac_t, variances = [], [], []
-    for name, var in joint_variance_deg2.items():
-        if name not in values or var <= 0:
-            continue
+    for name, var in moving:
         cols = []
         for sign in (1.0, -1.0):
             moved = Joints.from_dict({**values, name: values[name] + sign * step_deg})
@@ -77,7 +86,6 @@ def direction_covariances(
     if variances:
         ja, jt, v = np.array(jac_a).T, np.array(jac_t).T, np.diag(variances)
         cov_a, cov_t = ja @ v @ ja.T, jt @ v @ jt.T
-    names = tuple(calibration_names)
     if names and calibration_covariance is not None:
         cov_p = np.asarray(calibration_covariance, dtype=np.float64)
         p0 = parameters_of(names, alignment)

@@ -154,16 +154,16 @@ def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | No
                              max_frames=settings.max_frames, dark_frames=settings.dark_frames)  # fmt: skip
         frames = _frames(camera, plan.exposures_s)
         try:
-            reading = _roi_check(settings, frames)
+            check = _roi_check(settings, frames)
         except RoiError:
             # Every ROI pixel clipped in every frame (a dark point followed by a specular peak): meter.
             notes = ("the bracket planned from the previous point clipped every pixel: metered afresh",)
         else:
             # Clipped pixels would be left out of the mean, and they are the brightest: never keep that.
-            if reading.roi.dark:
+            if check.roi.dark:
                 notes = ("the bracket planned from the previous point left the ROI dark: metered afresh",)
-            elif not reading.roi.lower_bound and not np.any(reading.roi.n_flagged):
-                return _topped_up(camera, settings, frames, reading)
+            elif not check.roi.lower_bound and not np.any(check.roi.n_flagged):
+                return _topped_up(camera, settings, frames, check)
             else:
                 notes = ("the bracket planned from the previous point clipped: metered afresh",)
 
@@ -192,14 +192,15 @@ def snr_reached(reading: RoiReading) -> float:
     return float(np.min(np.abs(mean[ok]) / se[ok])) if np.any(ok) else float("inf")
 
 
-def _topped_up(camera: Camera, settings: CaptureSettings, frames: list[Frame], first: Reading) -> Reading:
+def _topped_up(camera: Camera, settings: CaptureSettings, frames: list[Frame], first: _Check) -> Reading:
     """The reading with darks, after a second bracket where the first fell short of the SNR goal."""
     reached = snr_reached(first.roi)
     notes: tuple[str, ...] = ()
-    if reached < TOP_UP_BELOW * settings.target_snr and first.level.peak > 0:
+    level = first.level if reached < TOP_UP_BELOW * settings.target_snr else None
+    if level is not None and level.peak > 0:
         # Inverse-variance merging adds SNRs in quadrature: plan only the part still missing.
         missing = float(np.sqrt(settings.target_snr**2 - reached**2))
-        plan = plan_exposure(first.level.roi_level(), settings.noise, missing, settings.timing,
+        plan = plan_exposure(level.roi_level(), settings.noise, missing, settings.timing,
                              max_frames=settings.max_frames, dark_frames=settings.dark_frames)  # fmt: skip
         frames = frames + _frames(camera, plan.exposures_s)
         notes = (f"SNR {reached:.0f} of {settings.target_snr:g} from the bracket planned on the previous point: "
@@ -207,7 +208,21 @@ def _topped_up(camera: Camera, settings: CaptureSettings, frames: list[Frame], f
     return _merge(camera, settings, frames, (), notes)
 
 
-def _roi_check(settings: CaptureSettings, frames: list[Frame]) -> Reading:
+@dataclass(frozen=True)
+class _Check:
+    """A bracket merged without darks to judge it: its ROI reading, and its level (counts/s) on demand."""
+
+    roi: RoiReading
+    hdr: HdrImage
+    box: Box
+
+    @property
+    def level(self) -> Level:
+        """The level a top-up is planned from (only a top-up needs it, so it is not worked out before)."""
+        return level_of(self.hdr, self.box)
+
+
+def _roi_check(settings: CaptureSettings, frames: list[Frame]) -> _Check:
     """The frames merged over the ROI alone, without darks: enough to judge them, at the ROI's cost.
 
     The crop is widened to even pixel bounds so a raw mosaic keeps its colour-filter phase.
@@ -220,7 +235,8 @@ def _roi_check(settings: CaptureSettings, frames: list[Frame]) -> Reading:
         frames = [dataclasses.replace(f, data=_crop(f.data, box), origin_xy=(f.origin_xy[0] + cx, f.origin_xy[1] + cy))
                   for f in frames]  # fmt: skip
         check = dataclasses.replace(check, roi=(x0 - cx, y0 - cy, x1 - cx, y1 - cy))
-    return _merge(None, check, frames, (), ())
+    hdr, box = _merged(check, frames, None)
+    return _Check(reduce_hdr_roi(hdr, box), hdr, box)
 
 
 def _capture(
@@ -247,10 +263,17 @@ def _merge(
     """Merge and reduce the frames, with the camera's dark frames (none without a camera)."""
     applied = tuple(f.exposure_s for f in frames)
     darks, dark_taken = _darks(camera, applied, settings.dark_frames) if camera is not None else ({}, ())
-    hdr = merge_linear(frames, settings.noise, darks=darks or None)
+    hdr, roi = _merged(settings, frames, darks or None)
+    reading = reduce_hdr_roi(hdr, roi)
+    return Reading(reading, hdr, applied, dark_taken, test, level_of(hdr, roi), notes)
+
+
+def _merged(
+    settings: CaptureSettings, frames: list[Frame], darks: dict[float, list[Frame]] | None
+) -> tuple[HdrImage, Box]:
+    """The frames merged (with ``darks`` where given) and flat-fielded, and the ROI box (pixels) to reduce."""
+    hdr = merge_linear(frames, settings.noise, darks=darks)
     if settings.flat_field is not None:
         hdr = settings.flat_field.apply(hdr, frames[0].origin_xy)
     h, w = hdr.radiance.shape[:2]
-    roi = settings.roi if settings.roi is not None else (0, 0, w, h)
-    reading = reduce_hdr_roi(hdr, roi)
-    return Reading(reading, hdr, applied, dark_taken, test, level_of(hdr, roi), notes)
+    return hdr, settings.roi if settings.roi is not None else (0, 0, w, h)

@@ -21,6 +21,8 @@ split makes safe needs the arms to cross and is refused.
 
 from __future__ import annotations
 
+import itertools
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -62,6 +64,44 @@ def _wrapped(d: FloatArray) -> FloatArray:
     """Angular distance in [0, 180] deg of an arm difference ``d`` in degrees."""
     out: FloatArray = np.abs((d + 180.0) % 360.0 - 180.0)
     return out
+
+
+# One move at a time (the runtime guard, the planner's splits) the same arithmetic runs on Python floats:
+# numpy on one-element arrays costs a microsecond per operation, and a move's check is hundreds of them.
+# Every operation is the one numpy does, in the same order (x * x for numpy's x**2; Python's % and
+# numpy's remainder agree), so the result is the same float; tests/rig/run/test_plan_paths.py pins it.
+Trapezoid = tuple[float, float, float, float, float, float]
+
+
+def _profile_one(a: float, b: float, speed: float, accel: float) -> Trapezoid:
+    """``_profile`` of one axis: start, direction, peak speed; accel end, decel start, end (deg, s)."""
+    d = abs(b - a)
+    tri = d * accel <= speed * speed
+    peak = math.sqrt(d * accel) if tri else speed
+    ta = peak / accel
+    total = 2.0 * ta if tri else d / speed + ta
+    return a, float((b > a) - (b < a)), peak, ta, total - ta, total
+
+
+def _state_one(prof: Trapezoid, t: float) -> tuple[float, float, float]:
+    """``_state`` of one axis at time ``t`` (s): position (deg), velocity (deg/s), acceleration (deg/s^2)."""
+    a, sgn, peak, ta, td, total = prof
+    acc_mag = peak / ta if ta > 0 else 0.0
+    tc = min(max(t, 0.0), total)
+    if tc < ta:
+        x, v, acc = 0.5 * acc_mag * (tc * tc), acc_mag * tc, acc_mag
+    elif tc >= td:
+        x = 0.5 * acc_mag * (ta * ta) + peak * (tc - ta) - 0.5 * acc_mag * ((tc - td) * (tc - td))
+        v, acc = peak - acc_mag * (tc - td), -acc_mag
+    else:
+        x, v, acc = 0.5 * acc_mag * (ta * ta) + peak * (tc - ta), peak, 0.0
+    if t >= total:
+        v = acc = 0.0
+    return a + sgn * x, sgn * v, sgn * acc
+
+
+def _wrapped_one(d: float) -> float:
+    return abs((d + 180.0) % 360.0 - 180.0)
 
 
 class ArmPaths:
@@ -145,6 +185,60 @@ class ArmPaths:
         swept: FloatArray = np.where(crossing, 0.0, np.minimum(_wrapped(lo), _wrapped(hi)))
         return swept - MARGIN_DEG
 
+    def _difference_one(self, x: Sequence[float] | FloatArray) -> float:
+        light = x[self.light] if self.light is not None else self.held_light
+        if self.fixed is not None:
+            return light - self.fixed
+        return light - (x[self.camera] if self.camera is not None else self.held_camera)
+
+    def clearance_one(self, src: Sequence[float] | FloatArray, dst: Sequence[float] | FloatArray) -> float:
+        """``clearance`` of the one move src -> dst (joint angles in deg), in Python floats: the same number."""
+        src, dst = [float(v) for v in src], [float(v) for v in dst]
+        d0, d1 = self._difference_one(src), self._difference_one(dst)
+        if self.coordinated:
+            lo, hi = min(d0, d1), max(d0, d1)
+            crosses = math.floor(hi / 360.0) * 360.0 >= lo
+            return (0.0 if crosses else min(_wrapped_one(d0), _wrapped_one(d1))) - MARGIN_DEG
+        if self.light is None and self.camera is None:
+            return min(_wrapped_one(d0), _wrapped_one(d1))
+        arms = [(i, 1.0 if i == self.light else -1.0) for i in (self.light, self.camera) if i is not None]
+        prof = [(sgn, _profile_one(src[i], dst[i], float(self.speed[i]), float(self.accel[i]))) for i, sgn in arms]
+        breaks = sorted([0.0, *(t for _, p in prof for t in p[3:])])
+        offset = 0.0  # what the difference adds for an arm without an axis (or the fixed camera)
+        if self.fixed is None and self.camera is None:
+            offset = -self.held_camera
+        elif self.fixed is not None:
+            offset = -self.fixed
+        elif self.light is None:
+            offset = self.held_light
+        lo, hi = min(d0, d1), max(d0, d1)
+        for t0, t1 in itertools.pairwise(breaks):
+            span = t1 - t0
+            mid = t0 + 0.5 * span
+            start = [(sgn, _state_one(p, t0)) for sgn, p in prof]
+            x0, v0 = start[0][0] * start[0][1][0], start[0][0] * start[0][1][1]
+            acc = prof[0][0] * _state_one(prof[0][1], mid)[2]
+            if len(prof) == 2:
+                x0 = x0 + start[1][0] * start[1][1][0]
+                v0 = v0 + start[1][0] * start[1][1][1]
+                acc = acc + prof[1][0] * _state_one(prof[1][1], mid)[2]
+            if offset:
+                x0 = x0 + offset
+            tau = -v0 / acc if acc != 0 else 0.0
+            tau = min(max(tau if math.isfinite(tau) else 0.0, 0.0), span)
+            for t in (span, tau):
+                x = x0 + v0 * t + 0.5 * acc * t * t
+                lo, hi = min(lo, x), max(hi, x)
+        crossing = math.floor(hi / 360.0) * 360.0 >= lo
+        return (0.0 if crossing else min(_wrapped_one(lo), _wrapped_one(hi))) - MARGIN_DEG
+
+    def safe_one(self, src: Sequence[float] | FloatArray, dst: Sequence[float] | FloatArray) -> bool:
+        """``safe`` of the one move src -> dst (joint angles in deg), the same decision at a fraction of the cost."""
+        if not self.active:
+            return True
+        start = _wrapped_one(self._difference_one([float(v) for v in src]))
+        return self.clearance_one(src, dst) >= min(self.sep, start - MARGIN_DEG)
+
     def safe(self, src: FloatArray, dst: FloatArray) -> npt.NDArray[np.bool_]:
         """Which moves keep the arms ``min_separation_deg`` apart throughout (or never closer than at the start)."""
         if not self.active:
@@ -158,7 +252,7 @@ class ArmPaths:
     def legs(self, src: FloatArray, dst: FloatArray) -> list[FloatArray] | None:
         """Poses (each (k,)) a move src -> dst goes through, ending at dst; None when no split is safe."""
         src, dst = np.asarray(src, dtype=np.float64), np.asarray(dst, dtype=np.float64)
-        if bool(self.safe(src, dst)[0]):
+        if self.safe_one(src, dst):
             return [dst]
         arms = [i for i in (self.light, self.camera) if i is not None]
         for first in arms:
@@ -167,7 +261,7 @@ class ArmPaths:
             for other in arms:
                 if other != first:
                     mid[other] = src[other]
-            if bool(self.safe(src, mid)[0]) and bool(self.safe(mid, dst)[0]):
+            if self.safe_one(src, mid) and self.safe_one(mid, dst):
                 return [mid, dst]
         return None
 

@@ -44,6 +44,7 @@ from rig.instrument.clock import Clock
 from rig.instrument.direction_uncertainty import direction_covariances
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints
+from rig.instrument.kinematics_types import Directions
 from rig.instrument.links.base import HomingLink, LinkError, MotionLink, MoveTimeout
 from rig.run.bounded_camera import BoundedCamera
 from rig.run.journal import check_records
@@ -240,8 +241,9 @@ class Runner:
                 reading = self._point(pos, point, level)
                 level = reading.level
                 self.eta.point_done()
-                bar.set_postfix_str(f"{format_eta(self.eta.remaining_s())}, {self._postfix(point, reading)}",
-                                    refresh=False)  # fmt: skip
+                if self.options.progress:  # the bar's text, only where there is a bar to show it
+                    bar.set_postfix_str(f"{format_eta(self.eta.remaining_s())}, {self._postfix(point, reading)}",
+                                        refresh=False)  # fmt: skip
                 bar.update(1)
             end = len(self.plan.points)
             if end in slots and end not in ref_done:
@@ -343,14 +345,14 @@ class Runner:
             "theta_o_deg": _f(float(d.theta_o)), "phi_o_deg": _f(float(d.phi_o)),
             "joints_deg": {k: _f(float(v)) for k, v in actual.as_dict().items()},
             **self._reading_fields(reading), "image": image, **self._times(t0, t1),
-            **self._uncertainty(actual, after), **self._distance(actual),
+            **self._uncertainty(actual, after, d), **self._distance(actual),
         })  # fmt: skip
         self._measured += 1
         if fault is not None:
             raise fault
         return reading
 
-    def _uncertainty(self, before: Joints, after: Mapping[str, float]) -> dict[str, Any]:
+    def _uncertainty(self, before: Joints, after: Mapping[str, float], measured: Directions) -> dict[str, Any]:
         """The directions' covariances (rig.instrument.direction_uncertainty) for the journal."""
         variance = {}
         for name, value in before.as_dict().items():
@@ -359,7 +361,7 @@ class Runner:
         cal = self.calibration
         angles, tangent = direction_covariances(
             self.geometry, before, self.alignment, variance, cal.names if cal else (),
-            cal.covariance if cal is not None and cal.covariance.size else None,
+            cal.covariance if cal is not None and cal.covariance.size else None, measured=measured,
         )  # fmt: skip
         return {"angle_cov_deg2": np.round(angles, 15).tolist(), "direction_cov": np.round(tangent, 18).tolist()}
 

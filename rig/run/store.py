@@ -17,7 +17,6 @@ crash-safety story that reads best in one place; the formats it writes are in st
 
 from __future__ import annotations
 
-import copy
 import csv
 import errno
 import fcntl
@@ -126,6 +125,15 @@ def _plain(value: Any, where: str, file: Path) -> Any:
 
 def _dumps(value: Any, **kw: Any) -> str:
     return json.dumps(value, allow_nan=False, ensure_ascii=True, **kw)
+
+
+def _copy_json(value: Any) -> Any:
+    """A deep copy of plain JSON values (dicts, lists and immutable scalars): ``copy.deepcopy`` at half the cost."""
+    if isinstance(value, dict):
+        return {k: _copy_json(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_copy_json(v) for v in value]
+    return value
 
 
 def _hashable(value: Any) -> Any:
@@ -306,7 +314,7 @@ class RunStore:
         """Journal records in order (copies); a read-only view re-reads the journal each time."""
         if not self._writable:
             self._load_journal(repair=False)
-        return copy.deepcopy(self._records)
+        return [_copy_json(r) for r in self._records]
 
     def append(self, record: Mapping[str, Any]) -> None:
         """Append one record (a mapping with a str "kind") to the journal; it is on disk when this returns."""

@@ -86,7 +86,7 @@ def write_exr(path: Path, image: npt.ArrayLike, channels: Sequence[str], varianc
             raise ValueError("variance has negative values")
         for ch, plane in zip(names, _planes("variance", var, names), strict=True):
             pixels[ch + VARIANCE_SUFFIX] = plane
-    import OpenEXR  # here, not at the top: reading a run's table (gonio analyze) needs no image library
+    import OpenEXR  # here, not at the top: a run saves images only when asked, and its start waits for imports
 
     header = {
         "compression": OpenEXR.ZIP_COMPRESSION,
@@ -154,8 +154,42 @@ def parse_journal(data: bytes) -> tuple[list[dict[str, Any]], int, int]:
     return records, good, torn
 
 
+class _NotJson(Exception):
+    """Raised by ``_plain_json`` at anything ``jsonable`` refuses; ``jsonable`` then finds and names it."""
+
+
+def _plain_json(value: Any) -> Any:
+    """``jsonable`` without building the key path of every value: a journal record has hundreds of them."""
+    if isinstance(value, np.ndarray | np.generic):
+        value = value.tolist()
+    if value is None or isinstance(value, bool | int | str):
+        return value
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise _NotJson
+        return value
+    if isinstance(value, Mapping):
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise _NotJson
+            out[k] = _plain_json(v)
+        return out
+    if isinstance(value, list | tuple):
+        return [_plain_json(v) for v in value]
+    raise _NotJson
+
+
 def jsonable(value: Any, where: str) -> Any:
     """``value`` as plain JSON types (numpy scalars and arrays become numbers and lists); errors name the key."""
+    try:
+        return _plain_json(value)
+    except _NotJson:
+        return _named(value, where)  # raises, naming the first value refused
+
+
+def _named(value: Any, where: str) -> Any:
+    """``jsonable``'s walk with the key path of every value, so that the error names the one refused."""
     if isinstance(value, np.ndarray | np.generic):
         value = value.tolist()
     if value is None or isinstance(value, bool | int | str):
@@ -168,9 +202,9 @@ def jsonable(value: Any, where: str) -> Any:
         bad = [k for k in value if not isinstance(k, str)]
         if bad:
             raise ValueError(f"{where} has key {bad[0]!r}: expected str keys")
-        return {k: jsonable(v, f"{where}[{k!r}]") for k, v in value.items()}
+        return {k: _named(v, f"{where}[{k!r}]") for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [jsonable(v, f"{where}[{i}]") for i, v in enumerate(value)]
+        return [_named(v, f"{where}[{i}]") for i, v in enumerate(value)]
     raise ValueError(f"{where} = {value!r} ({type(value).__name__}): not representable in JSON")
 
 

@@ -33,8 +33,6 @@ import numpy as np
 import numpy.typing as npt
 
 from acquisition.cfa import shift_pattern
-from acquisition.files.dng import write_dng
-from acquisition.files.raw import read_raw
 from acquisition.frame import ExposureSettings, Frame, FrameKind
 from acquisition.noise import SensorNoise
 from rig.instrument.clock import Clock, ManualClock
@@ -298,6 +296,11 @@ class SimulatedCamera:
         return _deliver(frame, patch)
 
     def _through_dng(self, frame: Frame, dark: bool) -> Frame:
+        # Imported here: tifffile and rawpy serve only a camera that writes DNG files, and a run's start waits
+        # for every import.
+        from acquisition.files.dng import write_dng
+        from acquisition.files.raw import read_raw
+
         assert self.dng_dir is not None
         self.dng_dir.mkdir(parents=True, exist_ok=True)
         path = self.dng_dir / f"{'dark' if dark else 'frame'}_{self._frames:06d}.dng"

@@ -310,3 +310,23 @@ def test_meter_counts_pixels_not_pixels_times_channels_in_a_colour_roi():
     roi_means = (counts.sum(axis=1) / sum(res.plan.exposures_s)).mean(axis=(1, 2))  # (repeats, channel)
     snr = roi_means.mean(axis=0) / roi_means.std(axis=0)
     assert np.all(snr > 0.85 * 400.0), snr
+
+
+def test_a_plan_is_the_evaluation_of_its_own_exposures_with_what_only_the_planner_knows() -> None:
+    # plan_exposure evaluates its bracket without the evaluation's pixel SNR (it puts in its own, over the
+    # bracket ladder): every other field must be what evaluate_plan says of the same exposures.
+    import dataclasses
+
+    noise, cam = SensorNoise(), CameraTiming(overhead_s=0.02)
+    rng = np.random.default_rng(11)
+    for _ in range(60):
+        peak = float(10 ** rng.uniform(1, 6))
+        means = [peak * float(rng.uniform(0.1, 0.9)) for _ in range(int(rng.integers(1, 4)))]
+        levels = [RoiLevel(peak, m, 16, m * float(rng.uniform(0.0, 0.8))) for m in means]
+        dark_frames = int(rng.integers(0, 3))
+        plan = plan_exposure(levels, noise, 200.0, cam, max_frames=5, dark_frames=dark_frames)
+        evaluated = evaluate_plan(levels, noise, plan.exposures_s, cam, target_snr=200.0, dark_frames=dark_frames)
+        assert evaluated.expected_pixel_snr is not None and plan.expected_pixel_snr is not None
+        same = dataclasses.replace(evaluated, reached=plan.reached, expected_pixel_snr=plan.expected_pixel_snr,
+                                   notes=plan.notes)  # fmt: skip
+        assert same == plan

@@ -319,3 +319,40 @@ def test_the_roi_counts_dark_pixels_and_a_dark_roi_says_so() -> None:
     lit = merge_linear(capture_bracket(np.full((16, 16), 5e4), noise, (0.01, 0.04), rng=3), noise)
     reading = reduce_roi(lit.radiance, lit.variance, (0, 0, 16, 16), flags=lit.saturated, dark=lit.dark)
     assert int(reading.n_dark) == 0 and not reading.dark
+
+
+@pytest.mark.parametrize(("read_noise_e", "chosen"), [(3.0, "sum"), (40.0, "inverse_variance")])
+def test_auto_weighting_gives_the_forced_merges_numbers_and_decides_as_on_a_second_sum_pass(
+    read_noise_e: float, chosen: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A small image (every pixel in the weighting sample) reuses the sample's sum pass as the merge's own,
+    # and the inverse-variance prediction weights by that pass: the same bits as running each afresh.
+    import acquisition.hdr.merge as merge_module
+    from acquisition.hdr.kernel import _Prepared
+    from acquisition.hdr.merge import IV_FRACTION, IV_GAIN, _decide_weighting
+
+    noise = SensorNoise(read_noise_e=read_noise_e)
+    scene = log_scene((12, 12, 3), *((1e5, 1e7) if chosen == "sum" else (20.0, 2e4)), seed=21)
+    frames = capture_bracket(scene, noise, EXPOSURES, 22)
+    darks = {t: [dark_frame(scene.shape, noise, t, 30 + k)] for k, t in enumerate(EXPOSURES)}
+    auto = merge_linear(frames, noise, darks=darks)
+    assert auto.metadata["weighting"] == chosen
+    forced = merge_linear(frames, noise, darks=darks, weighting=chosen)  # type: ignore[arg-type]
+    for name in ("radiance", "variance", "flags", "frames_used"):
+        assert np.array_equal(getattr(auto, name), getattr(forced, name)), name
+    captured: list[_Prepared] = []
+    original = _decide_weighting
+
+    def spy(prep: _Prepared) -> object:
+        captured.append(prep)
+        return original(prep)
+
+    monkeypatch.setattr(merge_module, "_decide_weighting", spy)
+    merge_linear(frames, noise, darks=darks)
+    prep = captured[0]
+    _, var_sum, flags, _ = prep.run(False)
+    _, var_iv, _, _ = prep.run(True)  # its own sum pass inside, as the decision ran before
+    ok = flags == 0
+    fraction = float(np.mean(np.sqrt(var_sum[ok].astype(np.float64) / var_iv[ok]) - 1.0 > IV_GAIN))
+    assert (fraction >= IV_FRACTION) == (chosen == "inverse_variance")
+    assert f"for {fraction:.2%} of" in str(auto.metadata["weighting_reason"])

@@ -166,6 +166,24 @@ def test_the_command_runs_on_an_existing_scheduler_and_shows_progress(cluster: A
     assert [r["status"] for r in pq.read_table(out / "catalogue.parquet").to_pylist()] == ["done", "failed"]
 
 
+def _pools() -> dict[str, int]:
+    """The thread pools of this (worker) process once a task has loaded numba's kernels and Mitsuba."""
+    import drjit as dr
+    import numba
+
+    import model.mitsuba.variant  # noqa: F401  (where gonio loads Mitsuba: it caps Dr.Jit's pool)
+
+    return {"numba": numba.config.NUMBA_NUM_THREADS, "drjit": dr.thread_count(),
+            "omp": int(os.environ.get("OMP_NUM_THREADS", "0"))}  # fmt: skip
+
+
+def test_each_worker_computes_on_one_thread_as_its_one_task_slot(cluster: Any, first: Any) -> None:
+    # Two workers with two numba and two Dr.Jit threads each would be eight threads taking turns on two cores.
+    pools = cluster.run(_pools)
+    assert len(pools) == 2
+    assert all(p == {"numba": 1, "drjit": 1, "omp": 1} for p in pools.values()), pools
+
+
 def test_an_unreachable_scheduler_is_named() -> None:
     with pytest.raises(ValueError, match=r"--scheduler tcp://127.0.0.1:9: cannot reach a Dask scheduler there"):
         with cluster_client(ClusterSettings(scheduler="tcp://127.0.0.1:9", connect_timeout_s=1.0)):

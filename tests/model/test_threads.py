@@ -34,7 +34,8 @@ print("REPORT " + json.dumps(info))
 
 
 def _run(code: str, **env: str) -> tuple[dict, str]:
-    base = {k: v for k, v in os.environ.items() if k not in threads.POLICY_ENV and k != "NUMBA_THREADING_LAYER"}
+    own = {*threads.POLICY_ENV, "NUMBA_THREADING_LAYER", "OMP_NUM_THREADS", "NUMBA_NUM_THREADS"}
+    base = {k: v for k, v in os.environ.items() if k not in own}
     proc = subprocess.run(
         [sys.executable, "-c", code], cwd=ROOT, env={**base, "OMP_DISPLAY_ENV": "TRUE", **env},
         capture_output=True, text=True, timeout=TIMEOUT_S, check=False,
@@ -88,3 +89,24 @@ def test_this_process_runs_under_the_policy():
         assert info["env"][key] == os.environ.get(key, value)
     if "OPENBLAS_NUM_THREADS" not in info["user_set"]:
         assert all(lib["num_threads"] == 1 for lib in info["blas"]), info["blas"]
+
+
+POOLS = """
+import json
+import model, numba
+import drjit as dr
+import model.mitsuba.variant
+print("REPORT " + json.dumps({"numba": numba.config.NUMBA_NUM_THREADS, "drjit": dr.thread_count()}))
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.mitsuba
+def test_omp_num_threads_caps_numbas_and_drjits_pools_too():
+    # What Dask's nanny sets in every worker; numba and Dr.Jit would size their pools by the cores.
+    info, _ = _run(POOLS, OMP_NUM_THREADS="1")
+    assert info["numba"] == 1 and info["drjit"] == 1, info
+    info, _ = _run(POOLS, OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="2")  # the user's own setting wins
+    assert info["numba"] == 2, info
+    info, _ = _run(POOLS)  # without it, both pools are as wide as the machine
+    assert info["numba"] == os.cpu_count() and info["drjit"] == os.cpu_count(), info

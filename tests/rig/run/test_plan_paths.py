@@ -177,3 +177,61 @@ def _no_full_matrix(real, n):  # type: ignore[no-untyped-def]
         return real(src, dst, *args)
 
     return call
+
+
+def _oracle_legs(paths: ArmPaths, src: np.ndarray, dst: np.ndarray) -> list[list[np.ndarray] | None]:
+    """``ArmPaths.legs`` of every move src[i] -> dst[i] as it was before the one-move arithmetic: each check
+    through the vectorised ``safe``, all moves at once (one arm first, then the other, where the direct move
+    is unsafe)."""
+    direct = paths.safe(src, dst)
+    arms = [i for i in (paths.light, paths.camera) if i is not None]
+    splits = []
+    for first in arms:
+        mid = dst.copy()
+        for other in arms:
+            if other != first:
+                mid[:, other] = src[:, other]
+        splits.append((mid, paths.safe(src, mid) & paths.safe(mid, dst)))
+    out: list[list[np.ndarray] | None] = []
+    for i in range(len(src)):
+        if direct[i]:
+            out.append([dst[i]])
+            continue
+        out.append(next(([mid[i], dst[i]] for mid, ok in splits if ok[i]), None))
+    return out
+
+
+@pytest.mark.parametrize("layout", ["in_plane", "four_axis", "fixed_camera"])
+@pytest.mark.parametrize("coordinated", [False, True])
+def test_the_one_move_check_gives_the_vectorised_checks_numbers_and_decisions(layout: str, coordinated: bool) -> None:
+    # The runtime guard checks one move at a time on Python floats; the planner checks batches with numpy.
+    # Same clearance to the last bit, same decision, same legs, over random moves, short moves, one arm still,
+    # and moves that run exactly at the minimum separation (both arms in step) or start parked inside it.
+    g = RigGeometry(layout=layout)
+    rng = np.random.default_rng(7)
+    sets = [["light", "camera"], ["light", "camera", "stage"], ["stage", "light"], ["camera"], ["light"]]
+    for names in sets:
+        if layout == "fixed_camera" and "camera" in names:
+            continue
+        k = len(names)
+        paths = ArmPaths(g, names, rng.uniform(5.0, 200.0, k), rng.uniform(10.0, 800.0, k), coordinated,
+                         held={"light": 30.0, "camera": -20.0})  # fmt: skip
+        src = rng.uniform(-200.0, 200.0, (400, k))
+        dst = rng.uniform(-200.0, 200.0, (400, k))
+        dst[::4] = src[::4] + rng.normal(0.0, 5.0, (100, k))  # short moves
+        dst[1::5, 0] = src[1::5, 0]  # one joint still
+        if paths.light is not None and paths.camera is not None:
+            li, ci = paths.light, paths.camera
+            src[2::6, ci] = src[2::6, li] - g.min_separation_deg  # exactly at the minimum ...
+            dst[2::6, li] = src[2::6, li] + 30.0
+            dst[2::6, ci] = src[2::6, ci] + 30.0  # ... all the way, when both arms move alike
+            src[3::6, ci] = src[3::6, li] - 0.5 * g.min_separation_deg  # parked inside the minimum
+        clearance, safe, oracle = paths.clearance(src, dst), paths.safe(src, dst), _oracle_legs(paths, src, dst)
+        for i in range(len(src)):
+            assert paths.clearance_one(src[i], dst[i]) == clearance[i], (names, src[i], dst[i])
+            assert paths.safe_one(src[i], dst[i]) == bool(safe[i]), (names, src[i], dst[i])
+            got, want = paths.legs(src[i], dst[i]), oracle[i]
+            assert (got is None) == (want is None) and (
+                got is None or all(np.array_equal(a, b) for a, b in zip(got, want or [], strict=True))
+            ), (names, src[i], dst[i])
+        assert 0 < np.count_nonzero(safe) < len(safe)  # both decisions were exercised

@@ -1,0 +1,50 @@
+"""What ``gonio run`` on the simulated servo rig imports before its first reading: only what a run needs.
+
+Every import is paid before the first reading (``bench/first_reading.py``), so what serves something else (DNG
+files, saved images, the GRBL simulator, the analysis, plots, Parquet) is imported where it is used. Checked
+in a fresh interpreter, by the modules present, not by a time.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# Everything the run's command, session, runner and simulated rig import, and the simulated rig's spec built
+# from the example rig file (what `gonio run` does before it opens the rig).
+PROBE = f"""
+import json, sys
+import gonio.cli, gonio.cli_run, rig.run.session, rig.run.runner, simulator.backend, simulator.rig
+from rig.run.config import load_rig
+from simulator.from_config import rig_from
+rig = load_rig({str(ROOT / "examples" / "rig_simulated.toml")!r})
+rig_from(rig)  # the unstarted rig: what opening it imports, without starting a bus or a render
+print(json.dumps(sorted(sys.modules)))
+"""
+
+NOT_BEFORE_THE_FIRST_READING = {
+    "tifffile": "DNG files (a camera that writes them)",
+    "rawpy": "DNG files",
+    "OpenEXR": "saved images (--save-images)",
+    "simulator.grbl_rig": "the GRBL simulator (a rig file with [simulation] link = 'grbl')",
+    "simulator.grbl": "the GRBL simulator",
+    "rig.instrument.links.grbl": "a GRBL link",
+    "pyarrow": "samples.parquet, written at the end",
+    "matplotlib": "plots",
+    "analysis": "gonio analyze",
+    "dask": "gonio batch",
+    "cv2": "the calibration board's detection",
+}
+
+
+def test_a_simulated_servo_run_imports_nothing_it_does_not_need_before_its_first_reading() -> None:
+    out = subprocess.run([sys.executable, "-c", PROBE], capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    loaded = set(json.loads(out.stdout.strip().splitlines()[-1]))
+    assert "rig.run.runner" in loaded and "simulator.rig" in loaded  # the probe did import the run
+    early = {m: why for m, why in NOT_BEFORE_THE_FIRST_READING.items() if m in loaded}
+    assert not early, f"imported before the first reading, though only needed for: {early}"
