@@ -75,14 +75,15 @@ def _previous(fit: Path) -> str:
 
 def _figure_modules() -> None:
     import analysis.report_html
-    import analysis.report_plots  # noqa: F401  (matplotlib, scipy and every figure's module)
+    import analysis.report_plots  # noqa: F401  (matplotlib and every figure's module)
 
 
 def _analyze(args: argparse.Namespace) -> int:
+    import model.fit.solve  # noqa: F401  (numpy and scipy, which both processes need: loaded once, before the fork)
     from analysis.figure_pool import Standby
 
-    # Forked first, with little loaded: the figures' process loads scipy and matplotlib on the second core while
-    # this one loads scipy and fits; it draws once the fit is handed to it (write_report).
+    # The figures' process loads matplotlib and the report's modules on the second core while this one loads the
+    # run's configuration and fits; it draws once the fit is handed to it (write_report).
     with Standby(_figure_modules) if args.jobs > 1 else contextlib.nullcontext() as standby:
         return _analyze_with(args, standby)
 
