@@ -15,7 +15,7 @@ import sys
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -42,6 +42,10 @@ from model.fit.solve import LOSSES
 from model.fit.spec import FitSpec
 from model.serialize import to_json_dict
 from rig.run.store import MANIFEST
+
+if TYPE_CHECKING:
+    from analysis.figure_pool import Standby
+    from analysis.report_plots import Figures
 
 
 def load_and_fit(
@@ -157,6 +161,7 @@ def default_out(source: str | Path) -> Path:
 def write_report(
     a: Analysis, out: str | Path, *, y_scale: str = "auto", merl: bool = False, log: Log | None = None,
     mitsuba_plugin: bool = False, svg: bool = False, progress: bool = False, jobs: int = 1, mitsuba_stock: str = "auto",
+    standby: Standby | None = None,
 ) -> Path:
     """Write figures/ (PNG; SVG too if ``svg``), fit.json, export/ (the chosen model for Mitsuba, glTF, optionally
     MERL) and index.html; ``progress``: a bar with ETA over the figures; ``jobs``: processes drawing figures.
@@ -164,26 +169,50 @@ def write_report(
     ``mitsuba_plugin`` adds export/mitsuba_gonio_plugin.xml, the exact model for processes that have gonio;
     ``mitsuba_stock`` (auto, tabulated, projection) picks what export/mitsuba_bsdf.* hold for a model
     without a native Mitsuba plugin (auto: the table or the projection, whichever Mitsuba measures closer).
+    With ``jobs`` > 1 the figures and the exports are made side by side (analysis/figure_pool.py, where it is
+    safe): the figures in ``standby`` (a process forked before the fit that loads matplotlib meanwhile, as
+    ``gonio analyze`` starts one) while the exports are made here, or else the exports in a forked child while the
+    figures are drawn here and in ``jobs`` - 1 workers. The files are the same bytes either way.
     """
-    from analysis.report_html import write_html
-    from analysis.report_plots import write_figures
+    from analysis.figure_pool import ForkedCall
 
     say = log or (lambda _: None)
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise AnalysisError(f"--out {out}: exists and is not a directory")
-    say(f"writing figures to {out / 'figures'}")
-    figures = write_figures(a, out / "figures", y_scale=y_scale, log=say, svg=svg, progress=progress, jobs=jobs)
     text = json.dumps(fit_json(a), indent=2, allow_nan=False) + "\n"
     write_atomic(out / "fit.json", lambda tmp: tmp.write_text(text, encoding="utf-8"))
     say(f"wrote {out / 'fit.json'}")
-    say(f"exporting the chosen model to {out / 'export'}" + (" (with a 35 MB MERL table)" if merl else ""))
-    # Imported only now: it loads Mitsuba, whose threads would keep the figures from being drawn in forked workers.
-    from analysis.export import export_material, export_notes
 
-    exports = export_material(a.selection.chosen.model, out / "export", merl=merl, gonio_plugin=mitsuba_plugin,
-                              stock=mitsuba_stock)  # fmt: skip
-    return write_html(a, figures, out / "index.html", exports, notes=export_notes(exports))
+    def export() -> tuple[dict[str, Path], dict[str, str]]:
+        # Imported only here: it loads Mitsuba, whose threads would keep figures from being drawn in forked workers.
+        from analysis.export import export_material, export_notes
+
+        paths = export_material(a.selection.chosen.model, out / "export", merl=merl, gonio_plugin=mitsuba_plugin,
+                                stock=mitsuba_stock)  # fmt: skip
+        return paths, export_notes(paths)
+
+    def figures_of() -> Figures:
+        from analysis.report_plots import write_figures
+
+        return write_figures(a, out / "figures", y_scale=y_scale, svg=svg, progress=progress, jobs=jobs)
+
+    say(f"writing figures to {out / 'figures'}")
+    say(f"exporting the chosen model to {out / 'export'}" + (" (with a 35 MB MERL table)" if merl else ""))
+    if standby is not None and standby.forked and jobs > 1:
+        standby.run(figures_of)
+        exports, notes = export()
+        figures = standby.result()
+    else:
+        # Forked before matplotlib loads here, so both load side by side.
+        with ForkedCall(export, fork=jobs > 1) as exporting:
+            figures = figures_of()
+            exports, notes = exporting.result()  # here and now, after the figures, when it was not forked
+    for f in figures.files:
+        say(f"wrote {f.png}")
+    from analysis.report_html import write_html
+
+    return write_html(a, figures, out / "index.html", exports, notes=notes)
 
 
 def analyze(

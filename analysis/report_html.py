@@ -16,14 +16,17 @@ import re
 from collections.abc import Mapping
 from html import escape
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from acquisition.files.atomic import write_atomic
 from analysis.report_params import correlation, parameter_status, undetermined_text
-from analysis.report_plots import Figures
 from analysis.report_truth import MAX_THETA_DEG, compare_truth
 from analysis.result import Analysis, noise_words
 from model.fit.solve import FitResult
 from model.version import gonio_version
+
+if TYPE_CHECKING:  # the page reads the written figures' paths and captions; it draws nothing (no matplotlib)
+    from analysis.report_plots import Figures
 
 #: What each fitted field means; all BRDF model parameters are dimensionless.
 MEANINGS = {

@@ -13,6 +13,7 @@ copies stay small even for 20,000 MERL samples.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,7 +23,7 @@ from matplotlib import rc_context
 from matplotlib.colors import ListedColormap, Normalize
 from matplotlib.patches import Circle
 
-from analysis.figure_pool import run_draws
+from analysis.figure_pool import PendingDraws, start_draws
 from analysis.progress import stage_bar
 from analysis.report_layout import FigureFile, Margins, eval_channels, panel_figure, save_figure
 from analysis.report_slices import Angles, Slice, angles_of, in_plane_directions, plot_polar, plot_slices, slices
@@ -32,8 +33,8 @@ from analysis.result import Analysis
 
 Array = npt.NDArray[np.float64]
 #: Re-exported: the report's angles and slices are imported from here by the tests and the batch.
-__all__ = ["Angles", "Coverage", "FigureFile", "Figures", "Slice", "angles_of", "coverage", "in_plane_directions",
-           "signed_rms", "slices", "write_figures"]
+__all__ = ["Angles", "Coverage", "FigureFile", "Figures", "PendingFigures", "Slice", "angles_of", "coverage",
+           "in_plane_directions", "signed_rms", "slices", "start_figures", "write_figures"]
 
 CLIP_SIGMA = 5.0
 #: Coverage grid cells (degrees) in theta_h, theta_d and phi_d.
@@ -181,6 +182,46 @@ def write_figures(
     notebook widget in Jupyter); ``names``: only these figures (default: all); ``jobs``: figures drawn side by side
     in up to this many forked processes where that is safe (analysis/figure_pool.py).
     """
+    with start_figures(a, out, y_scale=y_scale, svg=svg, names=names, jobs=jobs) as pending:
+        return pending.finish(log=log, progress=progress)
+
+
+class PendingFigures:
+    """Figures being drawn (see :func:`start_figures`); :meth:`finish` waits for them and returns the Figures."""
+
+    def __init__(self, pending: PendingDraws, n: int, cuts: tuple[Slice, ...], cov: Coverage) -> None:
+        self._pending, self._n, self._cuts, self._cov = pending, n, cuts, cov
+
+    def finish(self, *, log: Callable[[str], None] | None = None, progress: bool = False) -> Figures:
+        """Every figure written (``log``: a line per file; ``progress``: a bar with ETA on stderr)."""
+        with stage_bar(self._n, "figures", progress, unit="fig") as bar, _rc():
+
+            def done(made: FigureFile | None) -> None:
+                bar.update()
+                if made is not None and log:
+                    log(f"wrote {made.png}")
+
+            made = self._pending.finish(done)
+        return Figures(tuple(f for f in made if f is not None), self._cuts, self._cov)
+
+    def __enter__(self) -> PendingFigures:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._pending.close()
+
+
+def _rc() -> AbstractContextManager[None]:
+    """Titles at a fixed height: placing each one above its axes' tick labels measured them all again per save."""
+    return rc_context({"axes.titley": 1.0})
+
+
+def start_figures(
+    a: Analysis, out: str | Path, *, y_scale: str = "auto", svg: bool = False, names: Sequence[str] | None = None,
+    jobs: int = 1,
+) -> PendingFigures:
+    """Begin writing the figures (arguments as :func:`write_figures`): in forked workers where that is safe, so the
+    caller can work on meanwhile; use the result as a context manager and call its finish()."""
     if y_scale not in ("auto", "log", "linear"):
         raise ValueError(f"y scale {y_scale!r}: expected 'auto', 'log' or 'linear'")
     out = Path(out)
@@ -197,13 +238,6 @@ def write_figures(
     if unknown:
         raise ValueError(f"figures {sorted(unknown)}: expected names from {', '.join(every)}")
     draws = [draw for name, draw in every.items() if names is None or name in names]
-    # Titles at a fixed height: placing each one above its axes' tick labels measured them all again on every save.
-    with stage_bar(len(draws), "figures", progress, unit="fig") as bar, rc_context({"axes.titley": 1.0}):
-
-        def done(made: FigureFile | None) -> None:
-            bar.update()
-            if made is not None and log:
-                log(f"wrote {made.png}")
-
-        made = run_draws(draws, jobs, done)
-    return Figures(tuple(f for f in made if f is not None), cuts, cov)
+    with _rc():  # forked workers keep the settings they were forked with
+        pending = start_draws(draws, jobs)
+    return PendingFigures(pending, len(draws), cuts, cov)

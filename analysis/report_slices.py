@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
+from matplotlib import rc_context
 from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.lines import Line2D
@@ -139,6 +140,13 @@ def _error_bars(y: Array, e: Array, log: bool) -> tuple[Array, Array, npt.NDArra
 
 def plot_slices(a: Analysis, ang: Angles, cuts: tuple[Slice, ...], out: Path, y_scale: str, svg: bool) -> FigureFile:
     """Write slices.png (f_r in 1/sr against signed theta_o in degrees): data with 2-sigma bars, every candidate."""
+    # Grids from the start: ax.grid() on each of up to 18 panels restyled every tick it had made (a tenth of the
+    # figure's time); made with the grid on, each tick is drawn so once.
+    with rc_context({"axes.grid": True, "grid.alpha": 0.3}):
+        return _plot_slices(a, ang, cuts, out, y_scale, svg)
+
+
+def _plot_slices(a: Analysis, ang: Angles, cuts: tuple[Slice, ...], out: Path, y_scale: str, svg: bool) -> FigureFile:
     s, sel = a.samples, a.selection
     c = s.channels
     fig, axes, _ = panel_figure((4.2 * len(cuts) + 1.5, 3.1 * c + 1.2), c, len(cuts),
@@ -203,7 +211,6 @@ def plot_slices(a: Analysis, ang: Angles, cuts: tuple[Slice, ...], out: Path, y_
             else:
                 ax.set_ylim(0.0, 1.15 * top if top > 0 else 1.0)
                 ax.yaxis.set_major_locator(MaxNLocator(5))
-            ax.grid(alpha=0.3)
             ax.set_title(f"θi = {cut.theta_i_deg:.3g}° ({len(idx)} samples), channel {names[ch]}", fontsize=9)
             if j == 0:
                 ax.set_ylabel("f_r (1/sr)")

@@ -15,17 +15,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
-from matplotlib.figure import Figure
 
-from analysis.report_layout import Margins, panel_figure
 from analysis.result import Analysis, Reference
 from analysis.uncertainty import truth
 from model.base import BRDF, Model
 from model.geometry import degrees_to_vector, to_half_diff
+
+if TYPE_CHECKING:  # matplotlib loads only where a figure is drawn: fit.json reads the comparison's numbers alone
+    from matplotlib.figure import Figure
 
 Array = npt.NDArray[np.float64]
 MAX_THETA_DEG = 80.0
@@ -138,6 +139,8 @@ def compare_truth(a: Analysis) -> TruthComparison | None:
 
 def truth_figure(cmp: TruthComparison) -> tuple[Figure, str]:
     """Left: each parameter's z against the truth; right: the relative BRDF error over (theta_h, theta_d)."""
+    from analysis.report_layout import Margins, panel_figure
+
     fig, axes, cax = panel_figure((10.5, 3.8), 1, 2, Margins(left=0.75, bottom=0.6, top=0.35, wgap=0.75,
                                                               colorbar=0.15))  # fmt: skip
     left, right = axes[0]

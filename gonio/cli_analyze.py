@@ -16,12 +16,17 @@ directory holding other files, not an analysis, gets the report written into it,
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from gonio.cli_errors import CliError
 from gonio.cli_run import EXIT_OK
+
+if TYPE_CHECKING:
+    from analysis.figure_pool import Standby
 
 _MODELS_HELP = ("lambert, lambert_ggx (dielectric), lambert_ggx_schlick, ggx_conductor, ggx_conductor_lambert, "
                 "blinn_phong, ward (anisotropic)")  # fmt: skip
@@ -68,7 +73,22 @@ def _previous(fit: Path) -> str:
         return "its fit.json is unreadable"
 
 
+def _figure_modules() -> None:
+    import analysis.report_html
+    import analysis.report_plots  # noqa: F401  (matplotlib and every figure's module)
+
+
 def _analyze(args: argparse.Namespace) -> int:
+    import model.fit.solve  # noqa: F401  (numpy and scipy, which both processes need: loaded once, before the fork)
+    from analysis.figure_pool import Standby
+
+    # The figures' process loads matplotlib and the report's modules on the second core while this one loads the
+    # run's configuration and fits; it draws once the fit is handed to it (write_report).
+    with Standby(_figure_modules) if args.jobs > 1 else contextlib.nullcontext() as standby:
+        return _analyze_with(args, standby)
+
+
+def _analyze_with(args: argparse.Namespace, standby: Standby | None) -> int:
     from analysis.analyze import default_out, load_and_fit, stderr_log, write_report
     from analysis.batch.records import staged_dir
     from analysis.ladder import parse_models
@@ -81,7 +101,8 @@ def _analyze(args: argparse.Namespace) -> int:
                      seed=args.seed, compare=args.compare, log=log, errors=args.errors,
                      progress=not args.quiet)  # fmt: skip
     options = {"y_scale": args.y_scale, "merl": args.merl, "mitsuba_plugin": args.mitsuba_plugin, "svg": args.svg,
-               "progress": not args.quiet, "jobs": args.jobs, "mitsuba_stock": args.mitsuba_stock}  # fmt: skip
+               "progress": not args.quiet, "jobs": args.jobs, "mitsuba_stock": args.mitsuba_stock,
+               "standby": standby}  # fmt: skip
     if not whole:
         page = write_report(a, out, log=log, **options)
     else:

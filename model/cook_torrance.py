@@ -18,6 +18,7 @@ glTF's "roughness" r maps to alpha = r^2.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,6 +33,22 @@ FORMS: tuple[str, ...] = ("walter", "cook_torrance_1982")
 #: Smallest batch (direction pairs) evaluated by the numba kernel in model.kernels; both paths agree
 #: bit for bit in float64 (tests/model/test_kernels.py), so this only trades speed.
 KERNEL_MIN_PAIRS = 4096
+#: Pairs numpy evaluates in a process without numba before the first large batch loads it for the kernel.
+#: Importing numba and loading a cached kernel costs about 0.8 CPU s (measured on the 2-core EPYC VM), what numpy
+#: takes for about a million GGX pairs: a one-off analysis (some 10^5 pairs, gonio analyze) never pays it, while a
+#: long fit or a render pays it within its first second of numpy. Where numba is imported already (a run's HDR
+#: merge, the benchmarks), the kernel is used at once.
+KERNEL_LOAD_PAIRS = 1_000_000
+_numpy_pairs = 0
+
+
+def _kernel_worth_loading(pairs: int) -> bool:
+    """Whether a batch of ``pairs`` (>= KERNEL_MIN_PAIRS) goes to the kernel (see KERNEL_LOAD_PAIRS)."""
+    global _numpy_pairs
+    if "numba" in sys.modules:
+        return True
+    _numpy_pairs += pairs
+    return _numpy_pairs > KERNEL_LOAD_PAIRS
 
 
 def walter_from_1982(value_1982: npt.ArrayLike) -> Array:
@@ -135,7 +152,8 @@ class CookTorrance(Model):
         """BRDF value f_r in 1/sr (cosine excluded); the compiled kernel where it applies, else numpy."""
         # Below KERNEL_MIN_PAIRS the parallel kernel's wake-up after idle (~7 ms measured on the
         # 2-core VM) outweighs its speed, while numpy takes ~1 ms for 4096 pairs.
-        if np.size(wi) // 3 < KERNEL_MIN_PAIRS and np.size(wo) // 3 < KERNEL_MIN_PAIRS:
+        pairs = max(np.size(wi), np.size(wo)) // 3
+        if pairs < KERNEL_MIN_PAIRS or not _kernel_worth_loading(pairs):
             return super().eval(wi, wo)
         f = self.compiled_eval(wi, wo)
         return super().eval(wi, wo) if f is None else f

@@ -13,23 +13,26 @@ from __future__ import annotations
 import contextlib
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from acquisition.exposure.spec import CameraTiming
 from rig.instrument.alignment import aligned_inverse
 from rig.instrument.axis import AxisLimitError
 from rig.instrument.calibration_file import GeometryCalibration
 from rig.instrument.kinematics import forward, inverse, require
 from rig.instrument.kinematics_types import UnreachableError
-from rig.run.backends import Instruments, StartPose, backend
-from rig.run.calibrate import camera_flat_field, camera_noise
 from rig.run.config import ConfigError, RigConfig, SweepConfig, parse, rig_config, sweep_config
 from rig.run.config_schema import RigFile, SweepFile, run_metadata
 from rig.run.journal import check_records
-from rig.run.measure import CaptureSettings
-from rig.run.plan import Plan, plan_sweep
-from rig.run.runner import ReferenceSettings, Runner, RunOptions, RunSummary
 from rig.run.store import JOURNAL, RunStore, RunStoreError
+
+# What only measuring needs (the runner, the HDR merge and numba behind it, the planner, the backends) is
+# imported inside the functions that measure: gonio analyze rebuilds a run's configuration through configs_of
+# and should not pay seconds of imports for a run it only reads.
+if TYPE_CHECKING:
+    from rig.run.backends import Instruments, StartPose
+    from rig.run.measure import CaptureSettings
+    from rig.run.plan import Plan
+    from rig.run.runner import ReferenceSettings, RunOptions, RunSummary
 
 
 class RunFinished(RunStoreError):
@@ -38,6 +41,10 @@ class RunFinished(RunStoreError):
 
 def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
     """The capture settings of a run from the rig's camera and the sweep's [capture] table."""
+    from acquisition.exposure.spec import CameraTiming
+    from rig.run.calibrate import camera_flat_field, camera_noise
+    from rig.run.measure import CaptureSettings
+
     cam, cap = rig.file.camera, sweep.file.capture
     return CaptureSettings(
         noise=camera_noise(rig),
@@ -55,6 +62,8 @@ def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
 
 def reference_settings(rig: RigConfig) -> ReferenceSettings | None:
     """The reference schedule from the rig's [reference] table, None for kind 'none'."""
+    from rig.run.runner import ReferenceSettings
+
     ref = rig.file.reference
     if ref.kind == "none":
         return None
@@ -84,6 +93,9 @@ def _per_point_exposure_s(rig: RigConfig, sweep: SweepConfig) -> float:
 
 def make_plan(rig: RigConfig, sweep: SweepConfig) -> Plan:
     """The ordered plan with unreachable points listed and a time estimate (nothing moves)."""
+    from rig.run.backends import backend
+    from rig.run.plan import plan_sweep
+
     ref = reference_settings(rig)
     per_point = _per_point_exposure_s(rig, sweep)
     return plan_sweep(
@@ -97,6 +109,8 @@ def make_plan(rig: RigConfig, sweep: SweepConfig) -> Plan:
 
 def instruments(rig: RigConfig, start: StartPose | None = None) -> contextlib.AbstractContextManager[Instruments]:
     """Open the rig's link, camera and reference for a run through its registered backend (see RigBackend)."""
+    from rig.run.backends import backend
+
     return backend(rig.file.link.kind).open(rig, start=start)
 
 
@@ -127,6 +141,8 @@ def manifest(rig: RigConfig, sweep: SweepConfig, plan: Plan, run_options: RunOpt
 
 def options_for(rig: RigConfig, sweep: SweepConfig, progress: bool) -> RunOptions:
     """Run options from the rig's [link] and the sweep's [capture] tables."""
+    from rig.run.runner import RunOptions
+
     link, cap = rig.file.link, sweep.file.capture
     return RunOptions(move_timeout_s=link.move_timeout_s, settle_s=link.settle_s, on_stop=link.on_stop,
                       save_images=cap.save_images, include_cosine=cap.include_cosine, progress=progress,
@@ -134,6 +150,8 @@ def options_for(rig: RigConfig, sweep: SweepConfig, progress: bool) -> RunOption
 
 
 def _run(store: RunStore, rig: RigConfig, sweep: SweepConfig, plan: Plan, progress: bool) -> RunSummary:
+    from rig.run.runner import Runner
+
     with instruments(rig, start=last_pose(store)) as inst:
         runner = Runner(
             plan, store, inst.link, inst.camera, inst.clock, rig.geometry, capture_settings(rig, sweep),

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import re
 import shutil
+import subprocess
+import sys
 from html import escape
 from pathlib import Path
 from typing import Any
@@ -181,6 +183,30 @@ def test_the_same_inputs_give_the_same_bytes(gold_report: tuple[Analysis, Path],
     assert {"fit.json", "index.html", "figures/slices.svg", "export/material.json"} <= set(names)
     assert all(c["time_s"] is None for c in fit_doc(again.parent)["candidates"])
     assert "<dc:date>" not in (again.parent / "figures" / "polar.svg").read_text()
+
+
+@pytest.mark.mitsuba
+def test_reading_and_fitting_a_run_loads_neither_plots_nor_numba_nor_mitsuba(gold_run: Path) -> None:
+    from tests.analysis.test_analyze_speed import loaded_after
+
+    loaded = loaded_after(f"from analysis.analyze import load_and_fit\na = load_and_fit({str(gold_run)!r})\n"
+                          "assert a.samples.n > 0 and a.references")  # fmt: skip
+    assert loaded == [], f"loaded to read and fit {gold_run}: {loaded}"
+
+
+@pytest.mark.mitsuba
+def test_a_report_from_forked_workers_is_the_same_bytes(gold_report: tuple[Analysis, Path], gold_run: Path,
+                                                        tmp_path: Path) -> None:
+    # gonio analyze's default (--jobs 2) in a fresh process, where forking is safe: the exports made in a forked
+    # child, the figures here and in a worker; the same files as drawn and exported one after the other.
+    _, page = gold_report
+    out = tmp_path / "forked"
+    gonio = Path(sys.executable).with_name("gonio")
+    done = subprocess.run([str(gonio), "analyze", str(gold_run), "--out", str(out), "--svg", "--quiet", "--jobs", "2",
+                           "--models", "lambert,lambert_ggx_schlick,ggx_conductor"], capture_output=True, text=True,
+                          timeout=900)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert {"fit.json", "index.html", "figures/slices.png", "export/material.json"} <= set(same_files(page.parent, out))
 
 
 @pytest.mark.mitsuba

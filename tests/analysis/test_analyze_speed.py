@@ -1,0 +1,127 @@
+"""What keeps ``gonio analyze`` quick, checked by what it does rather than by timing it: which modules it loads
+(in a fresh interpreter, through sys.modules), that numba is not loaded for a one-off evaluation, and that work
+handed to a forked child comes back (result, exception, or done here when the child dies)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from analysis.figure_pool import ForkedCall, Standby
+
+ROOT = Path(__file__).resolve().parents[2]
+#: Modules an analysis of an existing table has no use for before it draws or exports: the measuring side of a run
+#: (its runner, planner, HDR merge and numba behind it), the image library, plots, Mitsuba, progress bars. (Reading a
+#: run's rig file loads the backend it names, as every rig file does: that module is cheap by design.)
+NOT_NEEDED = ("numba", "matplotlib", "mitsuba", "drjit", "OpenEXR", "tqdm", "asyncio", "cv2", "acquisition.hdr",
+              "acquisition.flatfield", "rig.run.runner", "rig.run.measure", "rig.run.calibrate", "rig.run.plan",
+              "model.kernels")  # fmt: skip
+
+
+def loaded_after(code: str) -> list[str]:
+    """The NOT_NEEDED modules (or their submodules) loaded after ``code`` runs in a fresh interpreter."""
+    probe = (f"{code}\nimport json, sys\nprint(json.dumps(sorted(m for m in sys.modules if any(m == n or "
+             f"m.startswith(n + '.') for n in {NOT_NEEDED!r}))))")  # fmt: skip
+    done = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    return list(json.loads(done.stdout.splitlines()[-1]))
+
+
+def test_the_analyze_command_imports_nothing_it_does_not_need() -> None:
+    loaded = loaded_after("import gonio.cli, gonio.cli_analyze, analysis.analyze, analysis.ladder, "
+                          "analysis.batch.records")  # fmt: skip
+    assert loaded == [], f"imported before any analysis: {loaded}"
+
+
+def test_a_one_off_evaluation_stays_in_numpy_and_a_long_one_loads_the_kernel() -> None:
+    code = """
+import sys
+import numpy as np
+from model import CookTorrance, cook_torrance
+from model.base import Model
+rng = np.random.default_rng(0)
+v = rng.normal(size=(2, 65536, 3)); v[..., 2] = np.abs(v[..., 2]); v /= np.linalg.norm(v, axis=-1, keepdims=True)
+m = CookTorrance(alpha=0.2, fresnel="conductor", eta=(0.2, 0.4, 1.4), k=(3.4, 2.4, 1.8))
+f = m.eval(v[0], v[1])
+assert "numba" not in sys.modules and "model.kernels" not in sys.modules
+for _ in range(cook_torrance.KERNEL_LOAD_PAIRS // 65536 + 1):
+    g = m.eval(v[0], v[1])
+assert "model.kernels" in sys.modules
+np.testing.assert_array_equal(g, f)  # the kernel agrees with numpy to the last bit (GGX)
+np.testing.assert_array_equal(m.eval(v[0], v[1]), Model.eval(m, v[0], v[1]))
+"""
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+
+
+FORKED = """
+import os, sys
+from analysis.figure_pool import ForkedCall, Standby
+parent = os.getpid()
+with ForkedCall(lambda: (os.getpid(), sorted(range(5))), fork=True) as call:
+    assert call.forked
+    pid, value = call.result()
+assert pid != parent and value == [0, 1, 2, 3, 4]
+def fail():
+    raise ValueError("export: no such model")
+with ForkedCall(fail, fork=True) as call:
+    try:
+        call.result()
+    except ValueError as exc:
+        assert "no such model" in str(exc)
+    else:
+        raise AssertionError("the child's exception was not raised here")
+# A child that dies without answering: the call is made here instead.
+with ForkedCall(lambda: os._exit(3) if os.getpid() != parent else "done here", fork=True) as call:
+    assert call.result() == "done here"
+# A standby loads first, then runs a call it is handed later: a closure plain pickle refuses (cloudpickle does not).
+from analysis.figure_pool import Standby
+with Standby(lambda: os.environ.__setitem__("PREPARED_IN", str(os.getpid()))) as standby:
+    assert standby.forked
+    scale = 3
+    standby.run(lambda: (os.environ.get("PREPARED_IN"), os.getpid(), [scale * i for i in range(3)]))
+    prepared_in, ran_in, value = standby.result()
+assert prepared_in == str(ran_in) and ran_in != parent and value == [0, 3, 6] and "PREPARED_IN" not in os.environ
+with Standby(lambda: None) as standby:
+    pass  # closed without work: the standby ends by itself
+print("ok")
+"""
+
+
+def test_forked_calls_return_their_result_raise_their_error_and_survive_a_dead_child() -> None:
+    done = subprocess.run([sys.executable, "-c", FORKED], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
+
+
+def test_a_forked_call_runs_here_when_forking_is_not_safe() -> None:
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait)
+    other.start()
+    try:
+        with ForkedCall(os.getpid, fork=True) as call:
+            assert not call.forked
+            assert call.result() == os.getpid()
+    finally:
+        stop.set()
+        other.join()
+    with ForkedCall(os.getpid, fork=False) as call:
+        assert not call.forked and call.result() == os.getpid()
+    with pytest.raises(ZeroDivisionError), ForkedCall(lambda: 1 / 0, fork=False) as call:
+        call.result()
+    stop.clear()
+    other = threading.Thread(target=stop.wait)
+    other.start()
+    try:
+        with Standby(lambda: None) as standby:
+            assert not standby.forked
+            standby.run(os.getpid)
+            assert standby.result() == os.getpid()
+    finally:
+        stop.set()
+        other.join()
