@@ -30,19 +30,21 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench._common import format_table, machine_description, markdown_table, write_section
+from bench._common import format_table, installed_env, machine_description, markdown_table, write_section
 
 ROOT = Path(__file__).resolve().parent.parent
 GONIO = Path(sys.executable).with_name("gonio")
 GOALS_S = {"run": 3.0, "run-1000": 5.0, "merl-20000": 15.0, "merl-1000": 5.0}
 SWEEP_1000 = ROOT / "bench" / "sweep_1000.toml"
+#: Every timed command runs as an installed gonio does, with Python's bytecode cache (bench/_common.py).
+ENV, BYTECODE_OFF = installed_env()
 
 
 def _timed(argv: list[str]) -> tuple[float, float]:
     """Wall-clock and CPU seconds (user + system, of the process and any it forked) of one run of argv."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run(argv, check=True, cwd=ROOT, stdout=subprocess.DEVNULL, timeout=1800)
+    subprocess.run(argv, check=True, cwd=ROOT, stdout=subprocess.DEVNULL, timeout=1800, env=ENV)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -128,18 +130,23 @@ def main(argv: list[str] | None = None) -> None:
     print(imp)
     loaded = f"load average {load[0]:.1f} before, {after[0]:.1f} after (1 min)"
     print(loaded)
+    pyc = ("Every command ran with Python's bytecode cache, as an installed gonio does"
+           + (" (this shell set PYTHONDONTWRITEBYTECODE; the commands did not inherit it)" if BYTECODE_OFF else ""))
+    print(pyc)
     if args.no_write:
         return
     body = "\n".join([
         "## `gonio analyze` end to end (`bench/analyze.py`)", "",
-        f"Measured {datetime.date.today().isoformat()} on {machine_description()}; {loaded}: a shared machine, "
-        "so these are upper bounds of what an idle one gives.", "",
+        f"Measured {datetime.date.today().isoformat()} on {machine_description()}; {loaded}"
+        + (": a shared machine, so these are upper bounds of what an idle one gives." if load[0] > 1.0 else
+           ": nothing else ran."), "",
         markdown_table(headers, md), "", imp + ".", "",
         "Sources: the shipped in-plane example (32 points); a 1,000-point run, `bench/sweep_1000.toml` (a dense "
         "isotropic grid: 10 incidences x 10 outgoing zenith angles x 10 azimuths, all reachable) measured by "
         "`gonio run` on `examples/rig_simulated.toml` like any run, untimed; a MERL table of a plastic with the "
         "default 20,000 bins and with `--samples 1000` (the 1,000-sample stand-in used before the 1,000-point run "
-        "existed). Default ladder, PNG figures only (`--svg` adds the SVGs), default `--jobs` (the cores, here 2).",
+        "existed). Default ladder, PNG figures only (`--svg` adds the SVGs), default `--jobs` (the cores, here 2). "
+        + pyc + ".",
     ])  # fmt: skip
     write_section(ROOT / "docs" / "benchmarks.md", "analyze", body)
 

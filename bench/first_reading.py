@@ -23,7 +23,14 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench._common import format_table, load_average, machine_description, markdown_table, write_section
+from bench._common import (
+    format_table,
+    installed_env,
+    load_average,
+    machine_description,
+    markdown_table,
+    write_section,
+)
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 RIG = Path(__file__).resolve().parent.parent / "examples" / "rig_simulated.toml"
@@ -93,11 +100,8 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory(prefix="gonio-first-") as tmp:
         work = Path(tmp)
-        env = dict(os.environ, NUMBA_CACHE_DIR=str(work / "numba"), HOME=str(work / "home"))
-        # Python's bytecode cache is part of a warm start as much as the kernel caches: an installed gonio has
-        # its .pyc files, and a shell that forbids writing them (some sandboxes set this) would recompile
-        # gonio's ~150 modules at every launch.
-        bytecode_off = env.pop("PYTHONDONTWRITEBYTECODE", None) is not None
+        env, bytecode_off = installed_env(dict(os.environ, NUMBA_CACHE_DIR=str(work / "numba"),
+                                               HOME=str(work / "home")))  # fmt: skip
         (work / "home").mkdir()
         anchor = interpreter_start(env)
         for label in ("cold", "warm"):
