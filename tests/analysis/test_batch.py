@@ -174,14 +174,16 @@ def _pools() -> dict[str, int]:
     import model.mitsuba.variant  # noqa: F401  (where gonio loads Mitsuba: it caps Dr.Jit's pool)
 
     return {"numba": numba.config.NUMBA_NUM_THREADS, "drjit": dr.thread_count(),
-            "omp": int(os.environ.get("OMP_NUM_THREADS", "0"))}  # fmt: skip
+            "omp": int(os.environ.get("OMP_NUM_THREADS", "0")),
+            "malloc_trim": os.environ.get("MALLOC_TRIM_THRESHOLD_")}  # fmt: skip
 
 
-def test_each_worker_computes_on_one_thread_as_its_one_task_slot(cluster: Any, first: Any) -> None:
-    # Two workers with two numba and two Dr.Jit threads each would be eight threads taking turns on two cores.
+def test_each_worker_computes_on_one_thread_with_mallocs_own_settings(cluster: Any, first: Any) -> None:
+    # Two workers with two numba and two Dr.Jit threads each would be eight threads taking turns on two cores;
+    # Dask's MALLOC_TRIM_THRESHOLD_ cost each analysis 0.5 s of page faults (analysis/batch/cluster.py).
     pools = cluster.run(_pools)
     assert len(pools) == 2
-    assert all(p == {"numba": 1, "drjit": 1, "omp": 1} for p in pools.values()), pools
+    assert all(p == {"numba": 1, "drjit": 1, "omp": 1, "malloc_trim": None} for p in pools.values()), pools
 
 
 def test_an_unreachable_scheduler_is_named() -> None:
