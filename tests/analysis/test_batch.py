@@ -18,7 +18,7 @@ import pytest
 
 from analysis.batch.analyze_batch import BatchResult, batch_analyze
 from analysis.batch.catalogue import COLUMNS
-from analysis.batch.cluster import ClusterSettings, cluster_client
+from analysis.batch.cluster import LOCAL_CONFIG, ClusterSettings, cluster_client
 from analysis.batch.inputs import AnalyzeSettings, batch_inputs, fingerprint
 from analysis.batch.records import TASKS, staged_dir, sweep_partials
 from gonio import cli
@@ -168,6 +168,7 @@ def test_the_command_runs_on_an_existing_scheduler_and_shows_progress(cluster: A
 
 def _pools() -> dict[str, int]:
     """The thread pools of this (worker) process once a task has loaded numba's kernels and Mitsuba."""
+    import dask
     import drjit as dr
     import numba
 
@@ -175,15 +176,18 @@ def _pools() -> dict[str, int]:
 
     return {"numba": numba.config.NUMBA_NUM_THREADS, "drjit": dr.thread_count(),
             "omp": int(os.environ.get("OMP_NUM_THREADS", "0")),
-            "malloc_trim": os.environ.get("MALLOC_TRIM_THRESHOLD_")}  # fmt: skip
+            "malloc_trim": os.environ.get("MALLOC_TRIM_THRESHOLD_"),
+            "config": {key: dask.config.get(key) for key in LOCAL_CONFIG}}  # fmt: skip
 
 
 def test_each_worker_computes_on_one_thread_with_mallocs_own_settings(cluster: Any, first: Any) -> None:
     # Two workers with two numba and two Dr.Jit threads each would be eight threads taking turns on two cores;
-    # Dask's MALLOC_TRIM_THRESHOLD_ cost each analysis 0.5 s of page faults (analysis/batch/cluster.py).
+    # Dask's MALLOC_TRIM_THRESHOLD_ cost each analysis 0.5 s of page faults, its 20 ms event-loop ticks and 10 ms
+    # stack samples 0.24 of the cores (analysis/batch/cluster.py).
     pools = cluster.run(_pools)
     assert len(pools) == 2
-    assert all(p == {"numba": 1, "drjit": 1, "omp": 1, "malloc_trim": None} for p in pools.values()), pools
+    want = {"numba": 1, "drjit": 1, "omp": 1, "malloc_trim": None, "config": LOCAL_CONFIG}
+    assert all(p == want for p in pools.values()), pools
 
 
 def test_an_unreachable_scheduler_is_named() -> None:
