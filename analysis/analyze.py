@@ -168,7 +168,7 @@ def write_report(
 
     ``mitsuba_plugin`` adds export/mitsuba_gonio_plugin.xml, the exact model for processes that have gonio;
     ``mitsuba_stock`` (auto, tabulated, projection) picks what export/mitsuba_bsdf.* hold for a model
-    without a native Mitsuba plugin (auto: the table or the projection, whichever Mitsuba measures closer).
+    without a native Mitsuba plugin (auto: the projection within 5 % RMS, else whichever Mitsuba measures closer).
     With ``jobs`` > 1 the figures and the exports are made side by side (analysis/figure_pool.py, where it is
     safe): the figures in ``standby`` (a process forked before the fit that loads matplotlib meanwhile, as
     ``gonio analyze`` starts one) while the exports are made here, or else the exports in a forked child while the

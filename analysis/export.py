@@ -58,7 +58,7 @@ from analysis.export_mitsuba import (
     stock_note,
     tabulated_note,
 )
-from analysis.export_stock import STOCK_FORMS, StockForms, stock_forms, tabulated_facts
+from analysis.export_stock import SELF_CONTAINED_RMS, STOCK_FORMS, StockForms, stock_forms, tabulated_facts
 from model.base import BRDF
 from model.fit.metal_roughness import GRAZING_DEG, MetalRoughnessFit, gltf_material, to_metal_roughness
 from model.geometry import spherical_to_vector
@@ -214,6 +214,8 @@ def _readme(model: BRDF, name: str, forms: StockForms, mr: MetalRoughnessFit, fi
         lines += [
             f"`mitsuba_bsdf.xml` and `mitsuba_bsdf.json` hold {default[forms.chosen]}"
             + (" (the only stock form: the model could not be tabulated, see below)." if forms.refusal
+               else f" (within {SELF_CONTAINED_RMS:.0%} RMS of the model and self-contained: no side file to find)."
+               if forms.requested == "auto" and forms.chosen == "projection" and forms.table is not None
                else " (the stock form with the lower relative RMS difference)." if forms.requested == "auto"
                else f" (as asked: `--mitsuba-stock {forms.requested}`)."), "",
             "### Projection (`mitsuba_projection.xml`)", "", stock_note(model, projection) + ".", "",

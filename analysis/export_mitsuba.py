@@ -10,8 +10,9 @@ of directions) is written into the XML's comments and the export's README.
 Tabulated form (``material.bsdf`` with ``mitsuba_measured.xml`` / ``mitsuba_measured.json``): the model
 tabulated in the RGL ``.bsdf`` format (:mod:`model.mitsuba.tabulated`) for stock Mitsuba's ``measured``
 plugin, its error measured the same way (Mitsuba reading the file, on the same grid). For a model without a
-native plugin, ``mitsuba_bsdf.*`` hold whichever of the projection and the table is closer (the projection
-also stays under ``mitsuba_projection.*``).
+native plugin, ``mitsuba_bsdf.*`` hold the projection where it is within 5 % RMS of the model (it needs no
+side file), else whichever of the two is closer (analysis/export_stock.py; the projection also stays under
+``mitsuba_projection.*``).
 
 Plugin form (``mitsuba_gonio_plugin.xml``, ``plugin=True``): the ``gonio_model`` plugin with the model's
 JSON in ``model_json``: exact, but it renders only in a Python process that imported

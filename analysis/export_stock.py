@@ -3,11 +3,14 @@
 A model with a native Mitsuba plugin maps exactly (:mod:`model.mitsuba.materials`). Any other has two stock
 forms, each with the error Mitsuba shows when it renders it (:func:`model.mitsuba.projection.grid_error`):
 the nearest diffuse + GGX roughconductor (:func:`model.mitsuba.projection.native_projection`) and the model
-tabulated for the ``measured`` plugin (:mod:`model.mitsuba.tabulated`). ``mitsuba_bsdf.*`` hold the one
-with the lower relative RMS difference unless the caller says which (``stock``). Measured on the default
-tabulation grid, the table wins for every model tried: Phong n = 30 1.8 % (projection 124 %), anisotropic
-Ward 2.2 % (79 %), Oren-Nayar 1.7 % (12 %), Lambert + GGX with Schlick Fresnel 2.0 % (2.7 %); at the low
-grid of bench/tabulated.py (16 samples, 12 elevations) that last one is 4.4 %, and the projection is taken.
+tabulated for the ``measured`` plugin (:mod:`model.mitsuba.tabulated`). Unless the caller says which
+(``stock``), ``mitsuba_bsdf.*`` hold the projection where Mitsuba measures it within
+:data:`SELF_CONTAINED_RMS` of the model, else the one with the lower relative RMS difference. The projection
+is preferred there because it is self-contained: an analytic BSDF with no side file, so the scene dictionary
+loads with ``mi.load_dict`` from any directory, while the table's ``filename`` is found only through
+Mitsuba's file resolver (scenes in the export directory, or a prepended path). Measured on the default
+tabulation grid (table against projection): Phong n = 30 1.8 % (124 %), anisotropic Ward 2.2 % (79 %),
+Oren-Nayar 1.7 % (12 %): tabulated; Lambert + GGX with Schlick Fresnel 2.0 % (2.7 %): projected.
 """
 
 from __future__ import annotations
@@ -22,6 +25,8 @@ from model.mitsuba.tabulated import Tabulated, TabulationGrid, tabulate, tabulat
 
 #: What ``export_material(stock=...)`` accepts: which form mitsuba_bsdf.* hold for a model without a native plugin.
 STOCK_FORMS: tuple[str, ...] = ("auto", "tabulated", "projection")
+#: Relative RMS difference (Mitsuba against the model) within which ``auto`` keeps the self-contained projection.
+SELF_CONTAINED_RMS = 0.05
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,8 +62,9 @@ def stock_forms(
             raise
         return StockForms(projection, None, None, "projection", refusal=str(exc), requested=stock)
     error = tabulated_error(model, table, variant)
+    close = projection.error["rms_rel"] <= SELF_CONTAINED_RMS
     better = error["rms_rel"] < projection.error["rms_rel"]
-    chosen = "tabulated" if stock == "tabulated" or (stock == "auto" and better) else "projection"
+    chosen = "tabulated" if stock == "tabulated" or (stock == "auto" and better and not close) else "projection"
     return StockForms(projection, table, error, chosen, requested=stock)
 
 

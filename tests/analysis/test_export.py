@@ -335,3 +335,20 @@ def test_gltf_asset_is_a_whole_valid_gltf_2_document(tmp_path: Path) -> None:
     for t in idx.reshape(-1, 3):
         a, b, c = pos[t]
         assert np.dot(np.cross(b - a, c - a), normals[t[0]]) > 0
+
+
+def test_the_usual_models_scene_dictionary_loads_from_any_directory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Lambert + GGX with Schlick Fresnel projects within 5 %: mitsuba_bsdf.json needs no side file to be found.
+    m = CookTorrance(alpha=0.2, fresnel="schlick", f0=0.04, rho_d=(0.5, 0.4, 0.2))
+    paths = export_material(m, tmp_path / "export")
+    facts = json.loads(paths["material"].read_text())["facts"]
+    assert facts["mitsuba_stock"]["form"] == "projection" and facts["mitsuba_projection"]["error"]["rms_rel"] <= 0.05
+    assert "tabulated" in paths  # the table is written all the same, under its own name
+    assert "self-contained" in paths["readme"].read_text()
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    bsdf = mi.load_dict(json.loads(paths["mitsuba_json"].read_text()))  # under the autouse fixture's variant
+    assert bsdf is not None
