@@ -213,11 +213,11 @@ def _readme(model: BRDF, name: str, forms: StockForms, mr: MetalRoughnessFit, fi
         native = json.dumps(to_json_dict(projection.native_model))
         lines += [
             f"`mitsuba_bsdf.xml` and `mitsuba_bsdf.json` hold {default[forms.chosen]}"
-            + (" (the only stock form: the model could not be tabulated, see below)." if forms.refusal
-               else f" (within {SELF_CONTAINED_RMS:.0%} RMS of the model and self-contained: no side file to find)."
-               if forms.requested == "auto" and forms.chosen == "projection" and forms.table is not None
-               else " (the stock form with the lower relative RMS difference)." if forms.requested == "auto"
-               else f" (as asked: `--mitsuba-stock {forms.requested}`)."), "",
+            + {"refused": " (the only stock form: the model could not be tabulated, see below).",
+               "self-contained": f" (within {SELF_CONTAINED_RMS:.0%} RMS of the model and self-contained: no side "
+                                 "file to find).",
+               "closer": " (the stock form with the lower relative RMS difference).",
+               "requested": f" (as asked: `--mitsuba-stock {forms.requested}`)."}[forms.why], "",
             "### Projection (`mitsuba_projection.xml`)", "", stock_note(model, projection) + ".", "",
             _error_paragraph(projection.error), "",
             f"The projection is the Mitsuba form of the gonio model `{native}`, fitted to the exported model's values.",

@@ -44,6 +44,9 @@ class StockForms:
     chosen: str
     refusal: str | None = None
     requested: str = "auto"
+    #: Why ``chosen``: "native", "refused" (no table), "requested", "self-contained" (the projection within
+    #: SELF_CONTAINED_RMS) or "closer" (the lower relative RMS difference).
+    why: str = "native"
 
 
 def stock_forms(
@@ -60,12 +63,15 @@ def stock_forms(
     except ValueError as exc:
         if stock == "tabulated":
             raise
-        return StockForms(projection, None, None, "projection", refusal=str(exc), requested=stock)
+        return StockForms(projection, None, None, "projection", refusal=str(exc), requested=stock, why="refused")
     error = tabulated_error(model, table, variant)
-    close = projection.error["rms_rel"] <= SELF_CONTAINED_RMS
-    better = error["rms_rel"] < projection.error["rms_rel"]
-    chosen = "tabulated" if stock == "tabulated" or (stock == "auto" and better and not close) else "projection"
-    return StockForms(projection, table, error, chosen, requested=stock)
+    if stock != "auto":
+        chosen, why = stock, "requested"
+    elif projection.error["rms_rel"] <= SELF_CONTAINED_RMS:
+        chosen, why = "projection", "self-contained"
+    else:
+        chosen, why = ("tabulated" if error["rms_rel"] < projection.error["rms_rel"] else "projection"), "closer"
+    return StockForms(projection, table, error, chosen, requested=stock, why=why)
 
 
 def tabulated_facts(forms: StockForms) -> dict[str, Any]:
