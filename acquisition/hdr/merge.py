@@ -85,7 +85,7 @@ from acquisition.hdr.bracket import (
     check_bracket,
     describe_frame,
 )
-from acquisition.hdr.kernel import _padded_size, _Prepared
+from acquisition.hdr.prepared import _Prepared
 from acquisition.hdr.saturation import measure_saturation
 from acquisition.noise import SensorNoise
 
@@ -205,16 +205,14 @@ def merge_linear(
         else:
             levels[g] = (noise.saturation_dn(g), "noise model (no clipped plateau in the data)")
 
-    size = _padded_size(n_frames)
     black_cache: dict[tuple[Any, ...], F32] = {}
     maps: list[npt.NDArray[Any] | None] = []
-    off_s = np.zeros(size)
-    thr_raw = np.full(size, -np.inf)
+    off_s = np.zeros(n_frames)
+    thr_raw = np.zeros(n_frames)
     thr_above = np.zeros(n_frames)
-    expo = np.ones(size)
-    expo[:n_frames] = [f.exposure_s * f.gain for f in frames]
-    shot = np.zeros(size)
-    cvar = np.ones(size)
+    expo = np.array([f.exposure_s * f.gain for f in frames], dtype=np.float64)
+    shot = np.zeros(n_frames)
+    cvar = np.zeros(n_frames)
     dark_notes: list[str] = []
     for i, f in enumerate(frames):
         if darks is None:
@@ -245,16 +243,16 @@ def merge_linear(
     present = [m for m in maps if m is not None]
     if len(present) == n_frames and all(m.dtype == np.uint16 for m in present):
         # One uint16 dark frame per exposure, as delivered.
-        offmaps = tuple(present) + (present[0],) * (size - n_frames)
+        offmaps = tuple(present)
     elif any(m is not None for m in maps):
         # Otherwise all maps float32 (one type per tuple); a frame with a number for offset reads a shared
         # zero map, one array that stays in cache.
         zeros = np.zeros(data[0].size, np.float32)
         as_f32 = [zeros if m is None else m.astype(np.float32, copy=False) for m in maps]
-        offmaps = tuple(as_f32) + (zeros,) * (size - n_frames)
-    shortest, longest = int(np.argmin(expo[:n_frames])), int(np.argmax(expo[:n_frames]))
+        offmaps = tuple(as_f32)
+    shortest, longest = int(np.argmin(expo)), int(np.argmax(expo))
     prep = _Prepared(
-        data=tuple(data) + (data[0],) * (size - n_frames), offmaps=offmaps, off_s=off_s, thr_raw=thr_raw,
+        data=tuple(data), offmaps=offmaps, off_s=off_s, thr_raw=thr_raw,
         expo=expo, shot=shot, cvar=cvar, shortest=shortest, longest=longest,
         dark_thr=dark_sigma * math.sqrt(cvar[longest]),
     )
@@ -333,10 +331,9 @@ def _decide_weighting(
     """
     stride = max(1, prep.data[0].size // IV_SAMPLE)
     sample = prep.subsample(stride) if stride > 1 else prep  # every pixel: the arrays as they are
-    first = sample.run(False)
-    _, var_sum, flags, _ = first
     # The inverse-variance prediction weights by the sum pass: the one just taken, not a second run of it.
-    _, var_iv, _, _ = sample.run(True, first[0].astype(np.float64))
+    first, var_iv = sample.sum_and_predicted_iv()
+    _, var_sum, flags, _ = first
     whole = first if stride == 1 else None
     ok = flags == 0
     if not ok.any():
