@@ -43,6 +43,9 @@ def check_bracket(frames: Sequence[Frame], kinds: Sequence[FrameKind]) -> FrameK
             raise FrameError(f"frame {i}: expected an acquisition.frame.Frame, got {type(f).__name__}")
     first = frames[0]
     for i, f in enumerate(frames):
+        if f.kind == first.kind and f.shape == first.shape and f.cfa_pattern == first.cfa_pattern:
+            if math.isfinite(f.exposure_s) and f.exposure_s > 0 and math.isfinite(f.gain) and f.gain > 0:
+                continue  # the usual case, without building the messages below
         where = describe_frame(i, f)
         if f.kind != first.kind:
             raise FrameError(

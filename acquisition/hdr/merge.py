@@ -65,6 +65,7 @@ as :func:`measure_saturation`), and the compiled pass in :mod:`acquisition.hdr.k
 from __future__ import annotations
 
 import enum
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
@@ -86,7 +87,7 @@ from acquisition.hdr.bracket import (
     describe_frame,
 )
 from acquisition.hdr.prepared import _Prepared
-from acquisition.hdr.saturation import measure_saturation
+from acquisition.hdr.saturation import _measured
 from acquisition.noise import SensorNoise
 
 Weighting = Literal["auto", "sum", "inverse_variance"]
@@ -199,7 +200,7 @@ def merge_linear(
         if saturation_dn is not None:
             levels[g] = (float(saturation_dn), "given")
             continue
-        measured = measure_saturation([f for f in frames if f.gain == g])
+        measured = _measured([f for f in frames if f.gain == g])
         if measured is not None:
             levels[g] = (measured, "measured from the data")
         else:
@@ -250,7 +251,9 @@ def merge_linear(
         zeros = np.zeros(data[0].size, np.float32)
         as_f32 = [zeros if m is None else m.astype(np.float32, copy=False) for m in maps]
         offmaps = tuple(as_f32)
-    shortest, longest = int(np.argmin(expo)), int(np.argmax(expo))
+    # np.argmin and np.argmax's picks (the first of equals), without their overhead on a few numbers.
+    e_list = expo.tolist()
+    shortest, longest = e_list.index(min(e_list)), e_list.index(max(e_list))
     prep = _Prepared(
         data=tuple(data), offmaps=offmaps, off_s=off_s, thr_raw=thr_raw,
         expo=expo, shot=shot, cvar=cvar, shortest=shortest, longest=longest,
@@ -270,8 +273,8 @@ def merge_linear(
         signal = neighbour_mean(rad.reshape(shape).astype(np.float64), step).reshape(-1)
         rad, var, flags, used = prep.run(True, signal)
     with np.errstate(invalid="ignore"):
-        below = (rad < -BELOW_BLACK_SIGMA * np.sqrt(var)) & (flags != HdrFlag.SATURATED)
-    flags = np.where(below, flags | HdrFlag.DARK | HdrFlag.BELOW_BLACK, flags).astype(np.uint8)
+        below = (rad < -BELOW_BLACK_SIGMA * np.sqrt(var)) & (flags != _SATURATED)
+    flags = np.where(below, flags | _DARK_BELOW_BLACK, flags).astype(np.uint8)
 
     no_darks = darks is None
     metadata: dict[str, object] = {
@@ -292,12 +295,22 @@ def merge_linear(
             "none: black level subtracted, dark current not removed (dim pixels read high by "
             "dark_current_e_per_s * t / e_per_dn counts)" if no_darks else tuple(dark_notes)
         ),
-        "noise": {f.name: getattr(noise, f.name) for f in fields(noise)},  # asdict's deep copy, without copying
+        "noise": {name: getattr(noise, name) for name in _field_names(type(noise))},  # asdict, without copying
     }
     return HdrImage(
         radiance=rad.reshape(shape), variance=var.reshape(shape), flags=flags.reshape(shape),
         frames_used=used.reshape(shape), exposures_s=tuple(float(f.exposure_s) for f in frames), metadata=metadata,
     )
+
+
+#: The flags as plain numbers: numpy operations with an IntFlag convert it on every call.
+_SATURATED = int(HdrFlag.SATURATED)
+_DARK_BELOW_BLACK = int(HdrFlag.DARK | HdrFlag.BELOW_BLACK)
+
+
+@functools.cache
+def _field_names(cls: type) -> tuple[str, ...]:
+    return tuple(f.name for f in fields(cls))
 
 
 def neighbour_mean(image: npt.NDArray[np.float64], step: int = 1) -> npt.NDArray[np.float64]:
@@ -336,13 +349,15 @@ def _decide_weighting(
     _, var_sum, flags, _ = first
     whole = first if stride == 1 else None
     ok = flags == 0
-    if not ok.any():
+    n_ok = int(np.count_nonzero(ok))
+    if n_ok == 0:
         return False, "auto: no unflagged pixel in the sample", whole
     gain = np.sqrt(var_sum[ok].astype(np.float64) / var_iv[ok]) - 1.0
-    fraction = float(np.mean(gain > IV_GAIN))
+    # np.mean of the booleans, exactly: an exact count over the number, rounded once.
+    fraction = int(np.count_nonzero(gain > IV_GAIN)) / n_ok
     verdict = fraction >= IV_FRACTION
     reason = (
         f"auto: the inverse-variance pass lowers the standard error by > {IV_GAIN:.0%} for {fraction:.2%} of "
-        f"{int(ok.sum())} sampled pixels (threshold {IV_FRACTION:.0%}); max gain {float(gain.max()):.2%}"
+        f"{n_ok} sampled pixels (threshold {IV_FRACTION:.0%}); max gain {float(gain.max()):.2%}"
     )
     return verdict, reason, whole

@@ -57,6 +57,11 @@ def measure_saturation(
     counts scales with it); :func:`~acquisition.hdr.merge.merge_linear` measures each gain's frames apart.
     """
     check_bracket(frames, ("raw", "linear"))
+    return _measured(frames, min_pixels, min_fraction)
+
+
+def _measured(frames: Sequence[Frame], min_pixels: int = 16, min_fraction: float = 1e-5) -> float | None:
+    """:func:`measure_saturation` of a bracket already checked."""
     levels: list[float] = []
     for f in sorted(frames, key=lambda f: f.exposure_s * f.gain, reverse=True):
         level = _plateau_level(f, min_pixels, min_fraction)
@@ -64,4 +69,7 @@ def measure_saturation(
             levels.append(level)
             if len(levels) == 2:
                 break
-    return float(np.median(levels)) if levels else None
+    if not levels:
+        return None
+    # np.median's own arithmetic on one or two values (the mean of the middle two), without its overhead.
+    return levels[0] if len(levels) == 1 else (levels[0] + levels[1]) / 2.0

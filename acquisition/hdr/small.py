@@ -70,57 +70,81 @@ NUMPY_BELOW = 1 << 13
 
 
 class _Sums:
-    """The sum pass's per-pixel terms, kept so an inverse-variance pass on the same bracket reuses them."""
+    """The sum pass's per-pixel terms, kept so an inverse-variance pass on the same bracket reuses them.
+
+    Arrays are (frames, pixels). The compiled pass adds a frame's terms to its sums only where the frame is
+    used; here every frame adds them there and 0.0 elsewhere, in frame order, which is the same: the sums
+    start at +0.0 and never become -0.0 (x + -x is +0.0), and adding 0.0 to anything else changes no bit.
+    """
 
     def __init__(self, prep: Inputs) -> None:
-        n_frames = len(prep.data)
-        data = [np.asarray(d, dtype=np.float64) for d in prep.data]
+        if len(prep.data) == 1:
+            self._one_frame(prep)
+            return
+        raw = np.array(prep.data, dtype=np.float64)
         if prep.offmaps is not None:
-            self.y = [d - np.asarray(o, dtype=np.float64) for d, o in zip(data, prep.offmaps, strict=True)]
+            self.y = raw - np.array(prep.offmaps, dtype=np.float64)
         else:
-            self.y = [d - prep.off_s[k] for k, d in enumerate(data)]
+            self.y = raw - prep.off_s[:, None]
         # The compiled pass compares the raw value, converted to float64, with the threshold.
-        self.use = [d < prep.thr_raw[k] for k, d in enumerate(data)]
-        n = data[0].size
-        # s, e, a, b of the compiled pass in one array: rows added together where the frame is used.
-        acc = np.zeros((4, n))
-        for k in range(n_frames):
-            terms = np.empty((4, n))
-            terms[0] = self.y[k]
-            terms[1] = prep.expo[k]
-            terms[2] = prep.shot[k]
-            terms[3] = prep.cvar[k]
-            acc = np.where(self.use[k], acc + terms, acc)
-        self.m = np.add.reduce(self.use, axis=0, dtype=np.intp) if n_frames > 1 else self.use[0].astype(np.intp)
-        s, e, a, b = acc
-        self.e = e
+        self.use = raw < prep.thr_raw[:, None]
+        n_frames, n = raw.shape
+        terms = np.empty((n_frames, 4, n))
+        terms[:, 0] = self.y
+        terms[:, 1] = prep.expo[:, None]
+        terms[:, 2] = prep.shot[:, None]
+        terms[:, 3] = prep.cvar[:, None]
+        s, e, a, b = _ordered_sum(np.where(self.use[:, None, :], terms, 0.0))
+        self.m = np.add.reduce(self.use, axis=0, dtype=np.intp)
         self.x = s / e
         self.xp = np.where(self.x > 0.0, self.x, 0.0)
         self.var_sum = (self.xp * a + b) / (e * e)
 
+    def _one_frame(self, prep: Inputs) -> None:
+        # One frame: e, a and b are that frame's numbers wherever it is used (elsewhere m = 0 and the outputs are
+        # replaced), s is 0.0 + y there.
+        raw = prep.data[0].astype(np.float64)
+        y = raw - (prep.offmaps[0].astype(np.float64) if prep.offmaps is not None else prep.off_s[0])
+        self.y = y[None, :]
+        self.use = (raw < prep.thr_raw[0])[None, :]
+        self.m = self.use[0].astype(np.intp)
+        e = prep.expo[0]
+        self.x = (y + 0.0) / e
+        self.xp = np.where(self.x > 0.0, self.x, 0.0)
+        self.var_sum = (self.xp * prep.shot[0] + prep.cvar[0]) / (e * e)
+
     def iv(self, prep: Inputs, signal: F64, with_radiance: bool) -> tuple[F64 | None, F64]:
         """The inverse-variance radiance (None unless asked) and variance where ``m > 1``, weighted by ``signal``."""
         xs = np.where(signal > 0.0, signal, 0.0)
-        n = self.x.size
-        wy = np.zeros(n)
-        we = np.zeros(n)
-        ww = np.zeros(n)
-        for k, use in enumerate(self.use):
-            w = prep.expo[k] / (xs * prep.shot[k] + prep.cvar[k])
-            if with_radiance:
-                wy = np.where(use, wy + w * self.y[k], wy)
-            we = np.where(use, we + w * prep.expo[k], we)
-            ww = np.where(use, ww + w * w * (self.xp * prep.shot[k] + prep.cvar[k]), ww)
+        expo, shot, cvar = prep.expo[:, None], prep.shot[:, None], prep.cvar[:, None]
+        w = expo / (xs * shot + cvar)
+        terms = np.empty((len(self.y), 3, self.x.size))
+        if with_radiance:
+            np.multiply(w, self.y, out=terms[:, 0])
+        else:
+            terms[:, 0] = 0.0
+        np.multiply(w, expo, out=terms[:, 1])
+        np.multiply(w * w, self.xp * shot + cvar, out=terms[:, 2])
+        wy, we, ww = _ordered_sum(np.where(self.use[:, None, :], terms, 0.0))
         return (wy / we if with_radiance else None), ww / (we * we)
 
     def finish(self, prep: Inputs, rad: F64, var: F64) -> Pass:
         """The pass's outputs: pixels used in no frame take the shortest frame's value, +inf and SATURATED."""
+        flags = np.where(self.y[prep.longest] < prep.dark_thr, np.uint8(2), np.uint8(0))
         none = self.m == 0
-        y_short = self.y[prep.shortest]
-        rad = np.where(none, y_short / prep.expo[prep.shortest], rad)
-        var = np.where(none, np.inf, var)
-        flags = np.where(none, 1, np.where(self.y[prep.longest] < prep.dark_thr, 2, 0)).astype(np.uint8)
+        if none.any():
+            rad = np.where(none, self.y[prep.shortest] / prep.expo[prep.shortest], rad)
+            var = np.where(none, np.inf, var)
+            flags[none] = 1
         return rad.astype(np.float32), var.astype(np.float32), flags, self.m.astype(np.uint8)
+
+
+def _ordered_sum(terms: F64) -> F64:
+    """``terms`` summed over the first axis from +0.0, in order (numpy's own reductions may reorder)."""
+    total = terms[0] + 0.0
+    for k in range(1, len(terms)):
+        total += terms[k]
+    return total
 
 
 def run_small(prep: Inputs, inverse_variance: bool, signal: F64 | None) -> Pass:
@@ -140,12 +164,16 @@ def sum_and_predicted_iv(prep: Inputs) -> tuple[Pass, F32]:
     """The sum pass, and the inverse-variance pass's variance weighted by that pass's radiance (float32).
 
     What the auto weighting compares, in one go: the same bits as ``run(False)`` then ``run(True, rad)``.
+    Where no pixel uses two frames the inverse-variance pass is the sum pass, so it is not computed.
     """
     with np.errstate(all="ignore"):
         sums = _Sums(prep)
         first = sums.finish(prep, sums.x, sums.var_sum)
+        several = sums.m > 1
+        if not several.any():
+            return first, first[1]
         _, var_iv = sums.iv(prep, first[0].astype(np.float64), False)
-        var = np.where(sums.m > 1, var_iv, sums.var_sum)
+        var = np.where(several, var_iv, sums.var_sum)
         var = np.where(sums.m == 0, np.inf, var).astype(np.float32)
     return first, var
 
