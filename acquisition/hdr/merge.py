@@ -65,7 +65,6 @@ as :func:`measure_saturation`), and the compiled pass in :mod:`acquisition.hdr.k
 from __future__ import annotations
 
 import enum
-import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
@@ -88,6 +87,7 @@ from acquisition.hdr.bracket import (
 )
 from acquisition.hdr.prepared import _Prepared
 from acquisition.hdr.saturation import _measured
+from acquisition.hdr.saturation import measure_saturation as measure_saturation  # re-exported
 from acquisition.noise import SensorNoise
 
 Weighting = Literal["auto", "sum", "inverse_variance"]
@@ -272,9 +272,10 @@ def merge_linear(
         step = 2 if kind == "raw" or frames[0].cfa_pattern else 1
         signal = neighbour_mean(rad.reshape(shape).astype(np.float64), step).reshape(-1)
         rad, var, flags, used = prep.run(True, signal)
-    with np.errstate(invalid="ignore"):
-        below = (rad < -BELOW_BLACK_SIGMA * np.sqrt(var)) & (flags != _SATURATED)
-    flags = np.where(below, flags | _DARK_BELOW_BLACK, flags).astype(np.uint8)
+    if rad.min() < 0.0:  # only a negative estimate can sit standard errors below zero
+        with np.errstate(invalid="ignore"):
+            below = (rad < -BELOW_BLACK_SIGMA * np.sqrt(var)) & (flags != _SATURATED)
+        flags = np.where(below, flags | _DARK_BELOW_BLACK, flags).astype(np.uint8)
 
     no_darks = darks is None
     metadata: dict[str, object] = {
@@ -308,9 +309,14 @@ _SATURATED = int(HdrFlag.SATURATED)
 _DARK_BELOW_BLACK = int(HdrFlag.DARK | HdrFlag.BELOW_BLACK)
 
 
-@functools.cache
+_FIELD_NAMES: dict[type, tuple[str, ...]] = {}
+
+
 def _field_names(cls: type) -> tuple[str, ...]:
-    return tuple(f.name for f in fields(cls))
+    names = _FIELD_NAMES.get(cls)
+    if names is None:
+        names = _FIELD_NAMES[cls] = tuple(f.name for f in fields(cls))
+    return names
 
 
 def neighbour_mean(image: npt.NDArray[np.float64], step: int = 1) -> npt.NDArray[np.float64]:
