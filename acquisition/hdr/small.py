@@ -184,12 +184,18 @@ def top_counts(flat: npt.NDArray[Any], lo: Any, mid: Any) -> tuple[int, int, Any
     Integer data sums exactly in int64; float data in float64 in pixel order (a cumulative sum, not numpy's
     pairwise sum, whose rounding differs).
     """
-    values = flat.astype(np.int64) if isinstance(lo, int) else flat.astype(np.float64)
+    if isinstance(lo, int) and flat.dtype.kind in "ui":
+        values = flat  # integers compare exactly with any Python int (numpy 2), no int64 copy needed
+    else:
+        values = flat.astype(np.int64) if isinstance(lo, int) else flat.astype(np.float64)
     top = values >= mid
     n_top = int(np.count_nonzero(top))
-    n_below = int(np.count_nonzero((values >= lo) & ~top))
+    if mid >= lo:  # then every top value is >= lo too (a NaN is neither)
+        n_below = int(np.count_nonzero(values >= lo)) - n_top
+    else:
+        n_below = int(np.count_nonzero((values >= lo) & ~top))
     picked = values[top]
     if isinstance(lo, int):
-        return n_below, n_top, int(picked.sum())
+        return n_below, n_top, int(picked.sum(dtype=np.int64))
     total = float(np.add.accumulate(np.concatenate(([0.0], picked)))[-1])
     return n_below, n_top, total
