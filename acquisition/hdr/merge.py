@@ -219,6 +219,7 @@ def merge_linear(
     cvar = np.zeros(n_frames)
     dark_notes: list[str] = []
     for i, f in enumerate(frames):
+        zero_var = float(noise.variance_dn2(0.0, f.exposure_s, f.gain))
         if darks is None:
             offset: npt.NDArray[Any] | float = _black_map(f, i, black_cache)
             dark_var, note = 0.0, "black level"
@@ -229,7 +230,7 @@ def merge_linear(
                     f"{describe_frame(i, f)}: no dark for exposure {f.exposure_s:g} s; darks were given for "
                     f"{sorted(float(k) for k in darks)} s"
                 )
-            offset, dark_var, note = _dark_offset(i, f, spec, noise)
+            offset, dark_var, note = _dark_offset(i, f, spec, noise, zero_var)
         dark_notes.append(note)
         if isinstance(offset, np.ndarray):
             maps.append(offset)
@@ -237,7 +238,7 @@ def merge_linear(
             maps.append(None)
             off_s[i] = offset
         shot[i] = expo[i] * f.gain / noise.e_per_dn
-        cvar[i] = float(noise.variance_dn2(0.0, f.exposure_s, f.gain)) + dark_var
+        cvar[i] = zero_var + dark_var
         black = _min_black(f)
         level = min(levels[f.gain][0], f.white_level - black)
         thr_above[i] = level - saturation_sigma * math.sqrt(float(noise.variance_dn2(level, f.exposure_s, f.gain)))
