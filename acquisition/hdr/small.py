@@ -78,9 +78,6 @@ class _Sums:
     """
 
     def __init__(self, prep: Inputs) -> None:
-        if len(prep.data) == 1:
-            self._one_frame(prep)
-            return
         raw = np.array(prep.data, dtype=np.float64)
         if prep.offmaps is not None:
             self.y = raw - np.array(prep.offmaps, dtype=np.float64)
@@ -99,19 +96,6 @@ class _Sums:
         self.x = s / e
         self.xp = np.where(self.x > 0.0, self.x, 0.0)
         self.var_sum = (self.xp * a + b) / (e * e)
-
-    def _one_frame(self, prep: Inputs) -> None:
-        # One frame: e, a and b are that frame's numbers wherever it is used (elsewhere m = 0 and the outputs are
-        # replaced), s is 0.0 + y there.
-        raw = prep.data[0].astype(np.float64)
-        y = raw - (prep.offmaps[0].astype(np.float64) if prep.offmaps is not None else prep.off_s[0])
-        self.y = y[None, :]
-        self.use = (raw < prep.thr_raw[0])[None, :]
-        self.m = self.use[0].astype(np.intp)
-        e = prep.expo[0]
-        self.x = (y + 0.0) / e
-        self.xp = np.where(self.x > 0.0, self.x, 0.0)
-        self.var_sum = (self.xp * prep.shot[0] + prep.cvar[0]) / (e * e)
 
     def iv(self, prep: Inputs, signal: F64, with_radiance: bool) -> tuple[F64 | None, F64]:
         """The inverse-variance radiance (None unless asked) and variance where ``m > 1``, weighted by ``signal``."""
@@ -147,9 +131,33 @@ def _ordered_sum(terms: F64) -> F64:
     return total
 
 
+def _one_frame(prep: Inputs) -> Pass:
+    """The pass on a one-frame bracket: a pixel uses the frame or nothing, so either weighting is the sum pass.
+
+    The sums are that frame's numbers where it is used (s = 0.0 + y, e = expo, a = shot, b = cvar); a pixel
+    that does not use it takes y / expo, as the compiled pass's shortest frame.
+    """
+    raw = prep.data[0].astype(np.float64)
+    y = raw - (prep.offmaps[0].astype(np.float64) if prep.offmaps is not None else prep.off_s[0])
+    use = raw < prep.thr_raw[0]
+    e = prep.expo[0]
+    rad = (y + 0.0) / e
+    xp = np.where(rad > 0.0, rad, 0.0)
+    var = (xp * prep.shot[0] + prep.cvar[0]) / (e * e)
+    flags = np.where(y < prep.dark_thr, np.uint8(2), np.uint8(0))
+    if not use.all():
+        none = ~use
+        rad = np.where(none, y / e, rad)
+        var = np.where(none, np.inf, var)
+        flags[none] = 1
+    return rad.astype(np.float32), var.astype(np.float32), flags, use.astype(np.uint8)
+
+
 def run_small(prep: Inputs, inverse_variance: bool, signal: F64 | None) -> Pass:
     """Radiance, variance, flags and frames used, flat: the compiled pass's outputs, computed in numpy."""
     with np.errstate(all="ignore"):
+        if len(prep.data) == 1:
+            return _one_frame(prep)
         sums = _Sums(prep)
         if not inverse_variance:
             return sums.finish(prep, sums.x, sums.var_sum)
@@ -167,6 +175,9 @@ def sum_and_predicted_iv(prep: Inputs) -> tuple[Pass, F32]:
     Where no pixel uses two frames the inverse-variance pass is the sum pass, so it is not computed.
     """
     with np.errstate(all="ignore"):
+        if len(prep.data) == 1:
+            first = _one_frame(prep)
+            return first, first[1]
         sums = _Sums(prep)
         first = sums.finish(prep, sums.x, sums.var_sum)
         several = sums.m > 1

@@ -83,7 +83,8 @@ def test_the_numpy_pass_merges_to_the_compiled_passes_bits(
     kinds = set()
     for trial in range(6):
         shape = ((7, 5, 3), (16, 16), (3, 9, 3), (1, 1, 3), (12, 12, 3), (2, 2))[trial]
-        frames = bracket(rng, shape, int(rng.integers(1, 10)), dtype)
+        # One frame (its own path), two, and up to nine (past the compiled pass's padding of eight).
+        frames = bracket(rng, shape, (1, 2, 1, int(rng.integers(3, 10)), 9, 1)[trial], dtype)
         dk = darks_for(rng, frames, darks)
         fast = merged(frames, dk, weighting, False, monkeypatch)
         slow = merged(frames, dk, weighting, True, monkeypatch)
