@@ -211,12 +211,13 @@ def merge_linear(
 
     black_cache: dict[tuple[Any, ...], F32] = {}
     maps: list[npt.NDArray[Any] | None] = []
-    off_s = np.zeros(n_frames)
-    thr_raw = np.zeros(n_frames)
-    thr_above = np.zeros(n_frames)
-    expo = np.array([f.exposure_s * f.gain for f in frames], dtype=np.float64)
-    shot = np.zeros(n_frames)
-    cvar = np.zeros(n_frames)
+    # Per frame, as Python floats (the same IEEE arithmetic as numpy's scalars, without their overhead).
+    off_s = [0.0] * n_frames
+    thr_raw = [0.0] * n_frames
+    thr_above = [0.0] * n_frames
+    expo = [f.exposure_s * f.gain for f in frames]
+    shot = [0.0] * n_frames
+    cvar = [0.0] * n_frames
     dark_notes: list[str] = []
     for i, f in enumerate(frames):
         zero_var = float(noise.variance_dn2(0.0, f.exposure_s, f.gain))
@@ -256,11 +257,10 @@ def merge_linear(
         as_f32 = [zeros if m is None else m.astype(np.float32, copy=False) for m in maps]
         offmaps = tuple(as_f32)
     # np.argmin and np.argmax's picks (the first of equals), without their overhead on a few numbers.
-    e_list = expo.tolist()
-    shortest, longest = e_list.index(min(e_list)), e_list.index(max(e_list))
+    shortest, longest = expo.index(min(expo)), expo.index(max(expo))
     prep = _Prepared(
-        data=tuple(data), offmaps=offmaps, off_s=off_s, thr_raw=thr_raw,
-        expo=expo, shot=shot, cvar=cvar, shortest=shortest, longest=longest,
+        data=tuple(data), offmaps=offmaps, off_s=np.array(off_s), thr_raw=np.array(thr_raw),
+        expo=np.array(expo), shot=np.array(shot), cvar=np.array(cvar), shortest=shortest, longest=longest,
         dark_thr=dark_sigma * math.sqrt(cvar[longest]),
     )
 
@@ -292,7 +292,7 @@ def merge_linear(
         "weighting_reason": reason,
         "saturation_level_dn": {g: lv for g, (lv, _) in levels.items()},
         "saturation_source": {g: src for g, (_, src) in levels.items()},
-        "saturation_threshold_dn": tuple(float(t) for t in thr_above),
+        "saturation_threshold_dn": tuple(thr_above),
         "saturation_sigma": saturation_sigma,
         "dark_sigma": dark_sigma,
         "darks_used": not no_darks,
