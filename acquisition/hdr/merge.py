@@ -276,7 +276,7 @@ def merge_linear(
         step = 2 if kind == "raw" or frames[0].cfa_pattern else 1
         signal = neighbour_mean(rad.reshape(shape).astype(np.float64), step).reshape(-1)
         rad, var, flags, used = prep.run(True, signal)
-    if rad.min() < 0.0:  # only a negative estimate can sit standard errors below zero
+    if (rad < 0.0).any():  # only a negative estimate can sit standard errors below zero (NaN is neither)
         with np.errstate(invalid="ignore"):
             below = (rad < -BELOW_BLACK_SIGMA * np.sqrt(var)) & (flags != _SATURATED)
         flags = np.where(below, flags | _DARK_BELOW_BLACK, flags).astype(np.uint8)

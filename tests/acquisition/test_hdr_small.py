@@ -12,7 +12,7 @@ import acquisition.hdr.prepared as prepared_module
 import acquisition.hdr.saturation as saturation_module
 from acquisition.frame import Frame
 from acquisition.hdr.kernel import _top_counts, run_compiled
-from acquisition.hdr.merge import HdrImage, merge_linear
+from acquisition.hdr.merge import BELOW_BLACK_SIGMA, HdrImage, merge_linear
 from acquisition.hdr.prepared import _Prepared
 from acquisition.hdr.small import run_small, top_counts
 from acquisition.noise import SensorNoise
@@ -145,3 +145,23 @@ def test_the_plateau_count_gives_the_compiled_counts_and_sums() -> None:
         flo, fmid = float(rng.uniform(0, 1e4)), float(rng.uniform(0, 2e4))
         got, want = top_counts(floats, flo, fmid), _top_counts(floats, flo, fmid)
         assert got[:2] == want[:2] and np.float64(got[2]).tobytes() == np.float64(want[2]).tobytes()
+
+
+def test_below_black_is_flagged_beside_nan_pixels() -> None:
+    # Frames below their black level in one corner, a master dark with NaN pixels: every pixel more than
+    # BELOW_BLACK_SIGMA standard errors below zero is flagged, whatever the NaN radiances beside it.
+    rng = np.random.default_rng(5)
+    shape = (6, 6, 3)
+    frames = []
+    for t in (0.01, 0.04):
+        data = NOISE.black_level_dn + 2e4 * t + rng.normal(0.0, 3.0, shape)
+        data[:2, :2] = NOISE.black_level_dn - 40.0
+        frames.append(Frame(np.round(data).astype(np.uint16), "linear", t, black_level=NOISE.black_level_dn,
+                            white_level=15871))  # fmt: skip
+    master = np.full(shape, float(NOISE.black_level_dn), np.float32)
+    master[3, 3] = np.nan
+    img = merge_linear(frames, NOISE, darks={0.01: master, 0.04: master})
+    assert np.isnan(img.radiance).any()
+    with np.errstate(invalid="ignore"):
+        expected = (img.radiance < -BELOW_BLACK_SIGMA * np.sqrt(img.variance)) & (img.flags & 1 == 0)
+    assert expected[:2, :2].all() and np.array_equal(img.below_black, expected)
