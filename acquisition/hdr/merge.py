@@ -362,12 +362,17 @@ def _decide_weighting(
     n_ok = int(np.count_nonzero(ok))
     if n_ok == 0:
         return False, "auto: no unflagged pixel in the sample", whole
-    gain = np.sqrt(var_sum[ok].astype(np.float64) / var_iv[ok]) - 1.0
-    # np.mean of the booleans, exactly: an exact count over the number, rounded once.
-    fraction = int(np.count_nonzero(gain > IV_GAIN)) / n_ok
+    if var_iv is var_sum:
+        # No pixel uses two frames, so both passes are one: v / v - 1 is 0.0, or NaN where v is 0 or not finite.
+        v = var_sum[ok]
+        fraction, max_gain = 0.0, 0.0 if bool((np.isfinite(v) & (v != 0)).all()) else math.nan
+    else:
+        gain = np.sqrt(var_sum[ok].astype(np.float64) / var_iv[ok]) - 1.0
+        # np.mean of the booleans, exactly: an exact count over the number, rounded once.
+        fraction, max_gain = int(np.count_nonzero(gain > IV_GAIN)) / n_ok, float(gain.max())
     verdict = fraction >= IV_FRACTION
     reason = (
         f"auto: the inverse-variance pass lowers the standard error by > {IV_GAIN:.0%} for {fraction:.2%} of "
-        f"{n_ok} sampled pixels (threshold {IV_FRACTION:.0%}); max gain {float(gain.max()):.2%}"
+        f"{n_ok} sampled pixels (threshold {IV_FRACTION:.0%}); max gain {max_gain:.2%}"
     )
     return verdict, reason, whole
