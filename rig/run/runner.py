@@ -15,8 +15,9 @@ from the link (a servo fault, a dead bus) or a second failure stops the run. Ctr
 case the axes are stopped and the link shut down by the torque policy (``torque_off`` or ``hold``), the
 journal keeps everything measured, and the run's status says why it stopped.
 
-Progress: the merge kernels are loaded (compiled on a first run) as a step before the first point, and the
-bar's ETA (``rig.run.progress``) leaves the first point's one-time costs out. The file stays whole past 400
+Progress: the merge is loaded as a step before the first point (its compiled passes, for images larger than
+an ROI crop, at the first such merge, after a notice where they compile), and the bar's ETA
+(``rig.run.progress``) leaves the first point's one-time costs out. The file stays whole past 400
 lines: the loop, its fault handling and its records are one sequence; what stands alone (camera deadlines,
 motion guard, progress, warm-up) lives beside it.
 """
