@@ -165,3 +165,25 @@ def test_below_black_is_flagged_beside_nan_pixels() -> None:
     with np.errstate(invalid="ignore"):
         expected = (img.radiance < -BELOW_BLACK_SIGMA * np.sqrt(img.variance)) & (img.flags & 1 == 0)
     assert expected[:2, :2].all() and np.array_equal(img.below_black, expected)
+
+
+@pytest.mark.parametrize("darks", ["none", "level"])
+def test_a_raw_mosaic_with_a_black_level_per_site_merges_to_the_same_bits(
+    darks: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Per-site black levels become per-pixel float32 offset maps: the map path of both passes, and (with
+    # mean dark levels for some frames only) a frame reading the shared zero map beside frames with maps.
+    rng = np.random.default_rng(9)
+    blacks = (500.0, 512.0, 520.0, 530.0)
+    frames = []
+    for k, t in enumerate((0.001, 0.004, 0.016)):
+        data = np.round(512.0 + rng.uniform(0, 2e6, (10, 12)) * t + rng.normal(0.0, 3.0, (10, 12)))
+        frames.append(Frame(np.clip(data, 0, 15871).astype(np.uint16), "raw", t, cfa_pattern="RGGB",
+                            black_level=blacks if k != 1 else 512.0, white_level=15871))  # fmt: skip
+    dk = None if darks == "none" else {0.004: 511.5, 0.001: 512.0, 0.016: 512.5}
+    for weighting in ("auto", "sum", "inverse_variance"):
+        fast = merged(frames, dk, weighting, False, monkeypatch)
+        slow = merged(frames, dk, weighting, True, monkeypatch)
+        for name in ("radiance", "variance", "flags", "frames_used"):
+            assert same_bits(getattr(fast, name), getattr(slow, name)), (weighting, name)
+        assert fast.metadata == slow.metadata
