@@ -43,6 +43,9 @@ def check_bracket(frames: Sequence[Frame], kinds: Sequence[FrameKind]) -> FrameK
             raise FrameError(f"frame {i}: expected an acquisition.frame.Frame, got {type(f).__name__}")
     first = frames[0]
     for i, f in enumerate(frames):
+        if f.kind == first.kind and f.shape == first.shape and f.cfa_pattern == first.cfa_pattern:
+            if math.isfinite(f.exposure_s) and f.exposure_s > 0 and math.isfinite(f.gain) and f.gain > 0:
+                continue  # the usual case, without building the messages below
         where = describe_frame(i, f)
         if f.kind != first.kind:
             raise FrameError(
@@ -110,27 +113,26 @@ def _find_dark(darks: Mapping[float, DarkSpec], exposure_s: float) -> DarkSpec |
 
 
 def _dark_offset(
-    index: int, frame: Frame, spec: DarkSpec, noise: SensorNoise
+    index: int, frame: Frame, spec: DarkSpec, noise: SensorNoise, one_frame_var: float | None = None
 ) -> tuple[npt.NDArray[Any] | float, float, str]:
-    """Offset to subtract (counts: a flat map or a number), the variance it adds (counts^2), a description."""
-    where = describe_frame(index, frame)
-    one_frame_var = float(noise.variance_dn2(0.0, frame.exposure_s, frame.gain))
+    """Offset to subtract (counts: a flat map or a number), the variance it adds (counts^2), a description.
+
+    ``one_frame_var``: the noise model's variance at zero signal for this frame (counts^2), if known already.
+    """
+    if one_frame_var is None:
+        one_frame_var = float(noise.variance_dn2(0.0, frame.exposure_s, frame.gain))
     if isinstance(spec, Frame):
         spec = [spec]
     if isinstance(spec, Sequence) and not isinstance(spec, (str, bytes)) and all(isinstance(d, Frame) for d in spec):
         if len(spec) == 0:
-            raise FrameError(f"{where}: the dark list for {frame.exposure_s:g} s is empty")
+            raise FrameError(f"{describe_frame(index, frame)}: the dark list for {frame.exposure_s:g} s is empty")
         total = np.zeros(frame.shape if len(spec) > 1 else (), np.float32)
         for j, d in enumerate(spec):
-            dwhere = f"dark {j} for {frame.exposure_s:g} s ({d.source or d.camera_id})"
-            if d.shape != frame.shape:
-                raise FrameError(f"{dwhere} has shape {d.shape} but {where} has shape {frame.shape}")
-            if d.kind != frame.kind:
-                raise FrameError(f"{dwhere} is kind {d.kind!r} but {where} is kind {frame.kind!r}")
-            if not math.isclose(d.gain, frame.gain, rel_tol=1e-4):
-                raise FrameError(f"{dwhere} has gain {d.gain!r} but {where} has gain {frame.gain!r}")
-            if not math.isclose(d.exposure_s, frame.exposure_s, rel_tol=1e-3):
-                raise FrameError(f"{dwhere} has exposure_s {d.exposure_s!r} but {where} has {frame.exposure_s!r}")
+            if not (
+                d.shape == frame.shape and d.kind == frame.kind and math.isclose(d.gain, frame.gain, rel_tol=1e-4)
+                and math.isclose(d.exposure_s, frame.exposure_s, rel_tol=1e-3)
+            ):  # fmt: skip
+                _mismatched_dark(index, frame, j, d)
             if len(spec) > 1:
                 total += np.asarray(d.data, dtype=np.float32)
         if len(spec) == 1 and spec[0].data.dtype == np.uint16:
@@ -138,6 +140,7 @@ def _dark_offset(
             return _flat(spec[0].data), one_frame_var, "1 dark frame"
         total /= len(spec)
         return _flat(total), one_frame_var / len(spec), f"{len(spec)} dark frames averaged"
+    where = describe_frame(index, frame)
     arr = np.asarray(spec, dtype=np.float32)
     if arr.ndim == 0:
         if not math.isfinite(float(arr)):
@@ -146,6 +149,19 @@ def _dark_offset(
     if arr.shape != frame.shape:
         raise FrameError(f"master dark for {frame.exposure_s:g} s has shape {arr.shape} but {where} has {frame.shape}")
     return _flat(arr), 0.0, "master dark array"
+
+
+def _mismatched_dark(index: int, frame: Frame, j: int, d: Frame) -> None:
+    """Raise the FrameError naming how dark ``j`` differs from the frame it is for."""
+    where = describe_frame(index, frame)
+    dwhere = f"dark {j} for {frame.exposure_s:g} s ({d.source or d.camera_id})"
+    if d.shape != frame.shape:
+        raise FrameError(f"{dwhere} has shape {d.shape} but {where} has shape {frame.shape}")
+    if d.kind != frame.kind:
+        raise FrameError(f"{dwhere} is kind {d.kind!r} but {where} is kind {frame.kind!r}")
+    if not math.isclose(d.gain, frame.gain, rel_tol=1e-4):
+        raise FrameError(f"{dwhere} has gain {d.gain!r} but {where} has gain {frame.gain!r}")
+    raise FrameError(f"{dwhere} has exposure_s {d.exposure_s!r} but {where} has {frame.exposure_s!r}")
 
 
 def _frame_data(frames: Sequence[Frame]) -> list[npt.NDArray[Any]]:

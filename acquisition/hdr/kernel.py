@@ -1,25 +1,26 @@
-"""The compiled pass of the linear HDR merge: the numba kernel factory and the inputs it runs on.
+"""The compiled passes of the HDR merge (numba): the merge kernel factory, its call, the plateau count.
 
-Holds ``_merge_kernel`` (one compiled, all-cores pass per configuration), ``_padded_size`` (the frame
-tuple is padded so brackets of similar length share a compilation) and ``_Prepared`` (the per-frame
-arrays the pass reads, padded, with a pixel subsample for the auto weighting decision). The estimator it
-computes is described in :mod:`acquisition.hdr.merge`.
+Holds ``_merge_kernel`` (one compiled, all-cores pass per configuration), ``run_compiled`` (pads the
+bracket's frames, so brackets of similar length share a compilation, and calls it) and ``_top_counts`` (the
+saturation plateau's count). Imported only for images too large for the numpy pass of
+:mod:`acquisition.hdr.small`, which computes the same bits: importing numba costs about a second. The
+estimator is described in :mod:`acquisition.hdr.merge`.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
-from dataclasses import dataclass
-from typing import Any
+import os
+from typing import TYPE_CHECKING, Any
 
 import numba
 import numpy as np
 import numpy.typing as npt
 from numba import prange
 
-F32 = npt.NDArray[np.float32]
+if TYPE_CHECKING:
+    from acquisition.hdr.small import Inputs, Pass
 
 _JIT: dict[str, Any] = {"fastmath": False, "error_model": "numpy", "boundscheck": False, "cache": True}
 
@@ -103,51 +104,55 @@ def _padded_size(n_frames: int) -> int:
     return 8 * math.ceil(n_frames / 8)
 
 
-@dataclass(frozen=True)
-class _Prepared:
-    """Everything the compiled pass needs, per frame padded to ``_padded_size`` (padding is never used)."""
+def run_compiled(prep: Inputs, inverse_variance: bool, signal: npt.NDArray[np.float64] | None) -> Pass:
+    """Radiance, variance, flags and frames used, flat, from the compiled pass (``signal`` as in ``run``)."""
+    n_frames = len(prep.data)
+    pad = _padded_size(n_frames) - n_frames
 
-    data: tuple[npt.NDArray[Any], ...]
-    offmaps: tuple[npt.NDArray[Any], ...] | None
-    off_s: npt.NDArray[np.float64]
-    thr_raw: npt.NDArray[np.float64]
-    expo: npt.NDArray[np.float64]
-    shot: npt.NDArray[np.float64]
-    cvar: npt.NDArray[np.float64]
-    shortest: int
-    longest: int
-    dark_thr: float
+    def padded(values: npt.NDArray[np.float64], fill: float) -> npt.NDArray[np.float64]:
+        return np.concatenate((values, np.full(pad, fill)))
 
-    def subsample(self, stride: int) -> _Prepared:
-        """The same merge on every ``stride``-th pixel."""
-        def sub(arrays: tuple[npt.NDArray[Any], ...]) -> tuple[npt.NDArray[Any], ...]:
-            cache: dict[int, npt.NDArray[Any]] = {}
-            return tuple(cache.setdefault(id(a), np.ascontiguousarray(a[::stride])) for a in arrays)
+    # Padding frames have threshold -inf and are never used; their offsets and exposures only need to exist.
+    data = prep.data + (prep.data[0],) * pad
+    n = prep.data[0].size
+    if signal is None:
+        signal = np.zeros(1)
+    rad = np.empty(n, np.float32)
+    var = np.empty(n, np.float32)
+    flags = np.empty(n, np.uint8)
+    used = np.empty(n, np.uint8)
+    with_maps = prep.offmaps is not None
+    zeros = (np.zeros(1, np.float32),) * len(data)
+    maps = prep.offmaps + (prep.offmaps[0],) * pad if prep.offmaps is not None else zeros
+    _merge_kernel(with_maps, inverse_variance, n >= SERIAL_BELOW)(
+        data, maps, padded(prep.off_s, 0.0), padded(prep.thr_raw, -np.inf), padded(prep.expo, 1.0),
+        padded(prep.shot, 0.0), padded(prep.cvar, 1.0), prep.shortest, prep.longest, prep.dark_thr,
+        np.ascontiguousarray(signal, dtype=np.float64), rad, var, flags, used,
+    )
+    return rad, var, flags, used
 
-        maps = None if self.offmaps is None else sub(self.offmaps)
-        return dataclasses.replace(self, data=sub(self.data), offmaps=maps)
 
-    def run(
-        self, inverse_variance: bool, signal: npt.NDArray[np.float64] | None = None
-    ) -> tuple[F32, F32, npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:
-        """Radiance, variance, flags and frames used, flat.
+@numba.njit(**_JIT)
+def _top_counts(flat: npt.NDArray[Any], lo: Any, mid: Any) -> tuple[int, int, Any]:  # pragma: no cover
+    # Pixels in [lo, mid), pixels >= mid and their sum, in one branch-free pass. ``lo - lo`` is a zero of
+    # lo's type: integers for integer data (exact sums, and 5x faster than a parallel float reduction).
+    zero = lo - lo
+    n_below = 0
+    n_top = 0
+    sum_top = zero
+    for i in range(flat.size):
+        v = flat[i] + zero
+        top = v >= mid
+        n_top += 1 if top else 0
+        sum_top += v if top else zero
+        n_below += 1 if (v >= lo and not top) else 0
+    return n_below, n_top, sum_top
 
-        ``signal`` (counts/s per pixel, flat) sets the inverse-variance weights; None uses each pixel's own
-        first-pass estimate, which is biased at low signal and serves only to predict variances.
-        """
-        n = self.data[0].size
-        if inverse_variance and signal is None:
-            signal = self.run(False)[0].astype(np.float64)
-        if signal is None:
-            signal = np.zeros(1)
-        rad = np.empty(n, np.float32)
-        var = np.empty(n, np.float32)
-        flags = np.empty(n, np.uint8)
-        used = np.empty(n, np.uint8)
-        with_maps = self.offmaps is not None
-        maps = self.offmaps if self.offmaps is not None else (np.zeros(1, np.float32),) * len(self.data)
-        _merge_kernel(with_maps, inverse_variance, n >= SERIAL_BELOW)(
-            self.data, maps, self.off_s, self.thr_raw, self.expo, self.shot, self.cvar, self.shortest, self.longest,
-            self.dark_thr, np.ascontiguousarray(signal, dtype=np.float64), rad, var, flags, used,
-        )
-        return rad, var, flags, used
+
+def cached() -> bool:
+    """Whether numba's on-disk cache already holds the compiled passes (False where that cannot be told)."""
+    for dispatcher in (_merge_kernel(False, False, False), _merge_kernel(True, False, False), _top_counts):
+        index = getattr(getattr(getattr(dispatcher, "_cache", None), "_cache_file", None), "_index_path", None)
+        if not isinstance(index, str) or not os.path.exists(index):
+            return False
+    return True

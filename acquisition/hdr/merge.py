@@ -54,12 +54,15 @@ subtracted and dark current is left in: dim pixels read high by ``dark_current *
 the result's metadata says so.
 
 Speed. One compiled pass (numba, all cores) reads each frame once per pixel and keeps the sums in
-registers; a bracket of 7 frames of 1 MP x 3 merges in a few tens of milliseconds.
+registers; a bracket of 7 frames of 1 MP x 3 merges in a few tens of milliseconds. Images of fewer than
+``NUMPY_BELOW`` values a frame (ROI crops) run the same arithmetic in numpy (:mod:`acquisition.hdr.small`, the
+same bits), so numba, about a second to import, loads only for a merge of a larger image.
 
 Layout. This module holds the result types (:class:`HdrImage`, :class:`HdrFlag`) and :func:`merge_linear`
 with its weighting decision; bracket validation, frame data, black levels and darks are in
 :mod:`acquisition.hdr.bracket`, the clip-level measurement in :mod:`acquisition.hdr.saturation` (re-exported here
-as :func:`measure_saturation`), and the compiled pass in :mod:`acquisition.hdr.kernel`.
+as :func:`measure_saturation`), the pass's inputs in :mod:`acquisition.hdr.prepared`, the numpy pass in
+:mod:`acquisition.hdr.small` and the compiled one in :mod:`acquisition.hdr.kernel`.
 """
 
 from __future__ import annotations
@@ -85,8 +88,9 @@ from acquisition.hdr.bracket import (
     check_bracket,
     describe_frame,
 )
-from acquisition.hdr.kernel import _padded_size, _Prepared
-from acquisition.hdr.saturation import measure_saturation
+from acquisition.hdr.prepared import _Prepared
+from acquisition.hdr.saturation import _measured
+from acquisition.hdr.saturation import measure_saturation as measure_saturation  # re-exported
 from acquisition.noise import SensorNoise
 
 Weighting = Literal["auto", "sum", "inverse_variance"]
@@ -199,24 +203,24 @@ def merge_linear(
         if saturation_dn is not None:
             levels[g] = (float(saturation_dn), "given")
             continue
-        measured = measure_saturation([f for f in frames if f.gain == g])
+        measured = _measured([f for f in frames if f.gain == g])
         if measured is not None:
             levels[g] = (measured, "measured from the data")
         else:
             levels[g] = (noise.saturation_dn(g), "noise model (no clipped plateau in the data)")
 
-    size = _padded_size(n_frames)
     black_cache: dict[tuple[Any, ...], F32] = {}
     maps: list[npt.NDArray[Any] | None] = []
-    off_s = np.zeros(size)
-    thr_raw = np.full(size, -np.inf)
-    thr_above = np.zeros(n_frames)
-    expo = np.ones(size)
-    expo[:n_frames] = [f.exposure_s * f.gain for f in frames]
-    shot = np.zeros(size)
-    cvar = np.ones(size)
+    # Per frame, as Python floats (the same IEEE arithmetic as numpy's scalars, without their overhead).
+    off_s = [0.0] * n_frames
+    thr_raw = [0.0] * n_frames
+    thr_above = [0.0] * n_frames
+    expo = [f.exposure_s * f.gain for f in frames]
+    shot = [0.0] * n_frames
+    cvar = [0.0] * n_frames
     dark_notes: list[str] = []
     for i, f in enumerate(frames):
+        zero_var = float(noise.variance_dn2(0.0, f.exposure_s, f.gain))
         if darks is None:
             offset: npt.NDArray[Any] | float = _black_map(f, i, black_cache)
             dark_var, note = 0.0, "black level"
@@ -227,7 +231,7 @@ def merge_linear(
                     f"{describe_frame(i, f)}: no dark for exposure {f.exposure_s:g} s; darks were given for "
                     f"{sorted(float(k) for k in darks)} s"
                 )
-            offset, dark_var, note = _dark_offset(i, f, spec, noise)
+            offset, dark_var, note = _dark_offset(i, f, spec, noise, zero_var)
         dark_notes.append(note)
         if isinstance(offset, np.ndarray):
             maps.append(offset)
@@ -235,7 +239,7 @@ def merge_linear(
             maps.append(None)
             off_s[i] = offset
         shot[i] = expo[i] * f.gain / noise.e_per_dn
-        cvar[i] = float(noise.variance_dn2(0.0, f.exposure_s, f.gain)) + dark_var
+        cvar[i] = zero_var + dark_var
         black = _min_black(f)
         level = min(levels[f.gain][0], f.white_level - black)
         thr_above[i] = level - saturation_sigma * math.sqrt(float(noise.variance_dn2(level, f.exposure_s, f.gain)))
@@ -245,17 +249,18 @@ def merge_linear(
     present = [m for m in maps if m is not None]
     if len(present) == n_frames and all(m.dtype == np.uint16 for m in present):
         # One uint16 dark frame per exposure, as delivered.
-        offmaps = tuple(present) + (present[0],) * (size - n_frames)
+        offmaps = tuple(present)
     elif any(m is not None for m in maps):
         # Otherwise all maps float32 (one type per tuple); a frame with a number for offset reads a shared
         # zero map, one array that stays in cache.
         zeros = np.zeros(data[0].size, np.float32)
         as_f32 = [zeros if m is None else m.astype(np.float32, copy=False) for m in maps]
-        offmaps = tuple(as_f32) + (zeros,) * (size - n_frames)
-    shortest, longest = int(np.argmin(expo[:n_frames])), int(np.argmax(expo[:n_frames]))
+        offmaps = tuple(as_f32)
+    # np.argmin and np.argmax's picks (the first of equals), without their overhead on a few numbers.
+    shortest, longest = expo.index(min(expo)), expo.index(max(expo))
     prep = _Prepared(
-        data=tuple(data) + (data[0],) * (size - n_frames), offmaps=offmaps, off_s=off_s, thr_raw=thr_raw,
-        expo=expo, shot=shot, cvar=cvar, shortest=shortest, longest=longest,
+        data=tuple(data), offmaps=offmaps, off_s=np.array(off_s), thr_raw=np.array(thr_raw),
+        expo=np.array(expo), shot=np.array(shot), cvar=np.array(cvar), shortest=shortest, longest=longest,
         dark_thr=dark_sigma * math.sqrt(cvar[longest]),
     )
 
@@ -271,9 +276,10 @@ def merge_linear(
         step = 2 if kind == "raw" or frames[0].cfa_pattern else 1
         signal = neighbour_mean(rad.reshape(shape).astype(np.float64), step).reshape(-1)
         rad, var, flags, used = prep.run(True, signal)
-    with np.errstate(invalid="ignore"):
-        below = (rad < -BELOW_BLACK_SIGMA * np.sqrt(var)) & (flags != HdrFlag.SATURATED)
-    flags = np.where(below, flags | HdrFlag.DARK | HdrFlag.BELOW_BLACK, flags).astype(np.uint8)
+    if (rad < 0.0).any():  # only a negative estimate can sit standard errors below zero (NaN is neither)
+        with np.errstate(invalid="ignore"):
+            below = (rad < -BELOW_BLACK_SIGMA * np.sqrt(var)) & (flags != _SATURATED)
+        flags = np.where(below, flags | _DARK_BELOW_BLACK, flags).astype(np.uint8)
 
     no_darks = darks is None
     metadata: dict[str, object] = {
@@ -286,7 +292,7 @@ def merge_linear(
         "weighting_reason": reason,
         "saturation_level_dn": {g: lv for g, (lv, _) in levels.items()},
         "saturation_source": {g: src for g, (_, src) in levels.items()},
-        "saturation_threshold_dn": tuple(float(t) for t in thr_above),
+        "saturation_threshold_dn": tuple(thr_above),
         "saturation_sigma": saturation_sigma,
         "dark_sigma": dark_sigma,
         "darks_used": not no_darks,
@@ -294,12 +300,27 @@ def merge_linear(
             "none: black level subtracted, dark current not removed (dim pixels read high by "
             "dark_current_e_per_s * t / e_per_dn counts)" if no_darks else tuple(dark_notes)
         ),
-        "noise": {f.name: getattr(noise, f.name) for f in fields(noise)},  # asdict's deep copy, without copying
+        "noise": {name: getattr(noise, name) for name in _field_names(type(noise))},  # asdict, without copying
     }
     return HdrImage(
         radiance=rad.reshape(shape), variance=var.reshape(shape), flags=flags.reshape(shape),
         frames_used=used.reshape(shape), exposures_s=tuple(float(f.exposure_s) for f in frames), metadata=metadata,
     )
+
+
+#: The flags as plain numbers: numpy operations with an IntFlag convert it on every call.
+_SATURATED = int(HdrFlag.SATURATED)
+_DARK_BELOW_BLACK = int(HdrFlag.DARK | HdrFlag.BELOW_BLACK)
+
+
+_FIELD_NAMES: dict[type, tuple[str, ...]] = {}
+
+
+def _field_names(cls: type) -> tuple[str, ...]:
+    names = _FIELD_NAMES.get(cls)
+    if names is None:
+        names = _FIELD_NAMES[cls] = tuple(f.name for f in fields(cls))
+    return names
 
 
 def neighbour_mean(image: npt.NDArray[np.float64], step: int = 1) -> npt.NDArray[np.float64]:
@@ -333,19 +354,25 @@ def _decide_weighting(
     """
     stride = max(1, prep.data[0].size // IV_SAMPLE)
     sample = prep.subsample(stride) if stride > 1 else prep  # every pixel: the arrays as they are
-    first = sample.run(False)
-    _, var_sum, flags, _ = first
     # The inverse-variance prediction weights by the sum pass: the one just taken, not a second run of it.
-    _, var_iv, _, _ = sample.run(True, first[0].astype(np.float64))
+    first, var_iv = sample.sum_and_predicted_iv()
+    _, var_sum, flags, _ = first
     whole = first if stride == 1 else None
     ok = flags == 0
-    if not ok.any():
+    n_ok = int(np.count_nonzero(ok))
+    if n_ok == 0:
         return False, "auto: no unflagged pixel in the sample", whole
-    gain = np.sqrt(var_sum[ok].astype(np.float64) / var_iv[ok]) - 1.0
-    fraction = float(np.mean(gain > IV_GAIN))
+    if var_iv is var_sum:
+        # No pixel uses two frames, so both passes are one: v / v - 1 is 0.0, or NaN where v is 0 or not finite.
+        v = var_sum[ok]
+        fraction, max_gain = 0.0, 0.0 if bool((np.isfinite(v) & (v != 0)).all()) else math.nan
+    else:
+        gain = np.sqrt(var_sum[ok].astype(np.float64) / var_iv[ok]) - 1.0
+        # np.mean of the booleans, exactly: an exact count over the number, rounded once.
+        fraction, max_gain = int(np.count_nonzero(gain > IV_GAIN)) / n_ok, float(gain.max())
     verdict = fraction >= IV_FRACTION
     reason = (
         f"auto: the inverse-variance pass lowers the standard error by > {IV_GAIN:.0%} for {fraction:.2%} of "
-        f"{int(ok.sum())} sampled pixels (threshold {IV_FRACTION:.0%}); max gain {float(gain.max()):.2%}"
+        f"{n_ok} sampled pixels (threshold {IV_FRACTION:.0%}); max gain {max_gain:.2%}"
     )
     return verdict, reason, whole

@@ -1,40 +1,21 @@
 """Measuring a bracket's clip level from the data: the plateau of clipped pixels at the top of its frames.
 
-Holds :func:`measure_saturation` and its helpers: ``_top_counts`` (a compiled count of the pixels in the
-plateau and just below it) and ``_plateau_level`` (one frame's plateau). See :mod:`acquisition.hdr.merge` for
-how the merge uses the level.
+Holds :func:`measure_saturation` and ``_plateau_level`` (one frame's plateau, from a count of the pixels in
+the plateau and just below it: numpy for a small frame, compiled for a large one, the same numbers). See
+:mod:`acquisition.hdr.merge` for how the merge uses the level.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
 
-import numba
 import numpy as np
-import numpy.typing as npt
 
 from acquisition.frame import Frame
 from acquisition.hdr.bracket import _flat, _min_black, check_bracket
-from acquisition.hdr.kernel import _JIT
-
-
-@numba.njit(**_JIT)
-def _top_counts(flat: npt.NDArray[Any], lo: Any, mid: Any) -> tuple[int, int, Any]:  # pragma: no cover
-    # Pixels in [lo, mid), pixels >= mid and their sum, in one branch-free pass. ``lo - lo`` is a zero of
-    # lo's type: integers for integer data (exact sums, and 5x faster than a parallel float reduction).
-    zero = lo - lo
-    n_below = 0
-    n_top = 0
-    sum_top = zero
-    for i in range(flat.size):
-        v = flat[i] + zero
-        top = v >= mid
-        n_top += 1 if top else 0
-        sum_top += v if top else zero
-        n_below += 1 if (v >= lo and not top) else 0
-    return n_below, n_top, sum_top
+from acquisition.hdr.compiled import compiled
+from acquisition.hdr.small import NUMPY_BELOW, top_counts
 
 
 def _plateau_level(frame: Frame, min_pixels: int, min_fraction: float) -> float | None:
@@ -48,10 +29,11 @@ def _plateau_level(frame: Frame, min_pixels: int, min_fraction: float) -> float 
     # the range is wide enough for any sensor seen, narrow beside the shot noise of unclipped pixels there.
     width = max(4.0, 2e-3 * (top - black))
     lo, mid = top - 4.0 * width, top - width
+    count = top_counts if flat.size < NUMPY_BELOW else compiled()._top_counts  # numba loads on first use
     if flat.dtype == np.uint16:
-        n_below, n_top, sum_top = _top_counts(flat, math.ceil(lo), math.ceil(mid))
+        n_below, n_top, sum_top = count(flat, math.ceil(lo), math.ceil(mid))
     else:
-        n_below, n_top, sum_top = _top_counts(flat, lo, mid)
+        n_below, n_top, sum_top = count(flat, lo, mid)
     # A clip piles pixels up at the top: far more there than the density just below (3 widths) predicts.
     if n_top < max(min_pixels, min_fraction * flat.size) or n_top * 3 < 8 * n_below:
         return None
@@ -75,6 +57,11 @@ def measure_saturation(
     counts scales with it); :func:`~acquisition.hdr.merge.merge_linear` measures each gain's frames apart.
     """
     check_bracket(frames, ("raw", "linear"))
+    return _measured(frames, min_pixels, min_fraction)
+
+
+def _measured(frames: Sequence[Frame], min_pixels: int = 16, min_fraction: float = 1e-5) -> float | None:
+    """:func:`measure_saturation` of a bracket already checked."""
     levels: list[float] = []
     for f in sorted(frames, key=lambda f: f.exposure_s * f.gain, reverse=True):
         level = _plateau_level(f, min_pixels, min_fraction)
@@ -82,4 +69,7 @@ def measure_saturation(
             levels.append(level)
             if len(levels) == 2:
                 break
-    return float(np.median(levels)) if levels else None
+    if not levels:
+        return None
+    # np.median's own arithmetic on one or two values (the mean of the middle two), without its overhead.
+    return levels[0] if len(levels) == 1 else (levels[0] + levels[1]) / 2.0

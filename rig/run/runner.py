@@ -15,8 +15,9 @@ from the link (a servo fault, a dead bus) or a second failure stops the run. Ctr
 case the axes are stopped and the link shut down by the torque policy (``torque_off`` or ``hold``), the
 journal keeps everything measured, and the run's status says why it stopped.
 
-Progress: the merge kernels are loaded (compiled on a first run) as a step before the first point, and the
-bar's ETA (``rig.run.progress``) leaves the first point's one-time costs out. The file stays whole past 400
+Progress: the merge is loaded as a step before the first point (its compiled passes, for images larger than
+an ROI crop, at the first such merge, after a notice where they compile), and the bar's ETA
+(``rig.run.progress``) leaves the first point's one-time costs out. The file stays whole past 400
 lines: the loop, its fault handling and its records are one sequence; what stands alone (camera deadlines,
 motion guard, progress, warm-up) lives beside it.
 """
@@ -56,7 +57,7 @@ from rig.run.reference import ReferenceTarget
 from rig.run.store import JOURNAL, RunStore
 from rig.run.table import build_rows
 from rig.run.table_parquet import write_beside
-from rig.run.warm_up import COMPILING, kernels_cached, warm_up
+from rig.run.warm_up import COMPILING, notify_before_compiling, warm_up
 
 TorquePolicy = Literal["torque_off", "hold"]
 
@@ -270,9 +271,9 @@ class Runner:
                           self.clock.now() - started)  # fmt: skip
 
     def _warm_up(self) -> None:
-        """Load the merge kernels (compile them on a first run) as a step of its own, before the first point."""
-        if self.options.progress and not kernels_cached():
-            print(COMPILING, file=sys.stderr, flush=True)
+        """Load the merge as a step of its own, before the first point (its compiled passes: where needed)."""
+        if self.options.progress:  # shown when a large image first needs the compiled passes, if uncached
+            notify_before_compiling(lambda: tqdm.write(COMPILING, file=sys.stderr))
         t0 = self._wall()
         warm_up(self.capture.noise)
         self.warm_up_s = self._wall() - t0

@@ -1,39 +1,39 @@
-"""Load (or, on a first run, compile) the merge's numba kernels before the first point, as a step of its own.
+"""Load the merge before the first point, as a step of its own; its compiled passes where they are needed.
 
-The HDR merge runs compiled passes that numba caches on disk (``cache=True``): the first run on a machine
-compiles them (tens of seconds on a loaded 2-core host), later runs load them (about a second, numba's own
-start-up included). Left to the first point, that cost hides inside it and inflates the first ETA; here it
-runs on a tiny synthetic bracket in each configuration a run uses (without and with dark frames, both
-weightings), before the progress bar starts. No frame is taken: the camera's noise stream stays as it was.
+The HDR merge runs ROI-sized images in numpy and larger ones in compiled passes that numba caches on disk
+(``cache=True``): the first run on a machine compiles them (tens of seconds on a loaded 2-core host), later
+runs load them (about a second, numba's own start-up included). Which a run needs is known only from its
+frames, so the compiled passes load at the first large merge (a run on ROI crops never loads numba), and
+:func:`notify_before_compiling` arms the notice shown before they compile. The warm-up step merges a tiny
+synthetic bracket in each configuration a run uses (without and with dark frames, both weightings), so the
+merge's own code is loaded before the progress bar starts. No frame is taken: the camera's noise stream
+stays as it was.
 """
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
 from acquisition.frame import Frame
-from acquisition.hdr.kernel import _merge_kernel
+from acquisition.hdr.compiled import notify_before_compiling
 from acquisition.hdr.merge import Weighting, merge_linear
 from acquisition.noise import SensorNoise
 
-#: Shown before the step when the kernels are not in numba's cache yet.
+__all__ = ["COMPILING", "kernels_cached", "notify_before_compiling", "warm_up"]
+
+#: Shown before the compiled passes compile (not in numba's cache yet).
 COMPILING = "compiling kernels (first run only)..."
 
 
 def kernels_cached() -> bool:
-    """Whether numba's on-disk cache already holds the merge kernels (False where that cannot be told)."""
-    for with_maps in (False, True):
-        cache = getattr(_merge_kernel(with_maps, False, False), "_cache", None)
-        index = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
-        if not isinstance(index, str) or not os.path.exists(index):
-            return False
-    return True
+    """Whether numba's on-disk cache already holds the merge's compiled passes (imports numba)."""
+    from acquisition.hdr.kernel import cached
+
+    return cached()
 
 
 def warm_up(noise: SensorNoise) -> None:
-    """Merge a 4 x 4 x 3 two-frame bracket of 16-bit counts each way a run does, so every kernel is loaded."""
+    """Merge a 4 x 4 x 3 two-frame bracket of 16-bit counts each way a run does (numpy: no kernel loads)."""
     black = noise.black_level_dn
 
     def frame(level: float, exposure_s: float) -> Frame:

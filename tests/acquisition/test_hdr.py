@@ -328,8 +328,8 @@ def test_auto_weighting_gives_the_forced_merges_numbers_and_decides_as_on_a_seco
     # A small image (every pixel in the weighting sample) reuses the sample's sum pass as the merge's own,
     # and the inverse-variance prediction weights by that pass: the same bits as running each afresh.
     import acquisition.hdr.merge as merge_module
-    from acquisition.hdr.kernel import _Prepared
     from acquisition.hdr.merge import IV_FRACTION, IV_GAIN, _decide_weighting
+    from acquisition.hdr.prepared import _Prepared
 
     noise = SensorNoise(read_noise_e=read_noise_e)
     scene = log_scene((12, 12, 3), *((1e5, 1e7) if chosen == "sum" else (20.0, 2e4)), seed=21)

@@ -8,6 +8,7 @@ in a fresh interpreter, by the modules present, not by a time.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -38,6 +39,8 @@ NOT_BEFORE_THE_FIRST_READING = {
     "analysis": "gonio analyze",
     "dask": "gonio batch",
     "cv2": "the calibration board's detection",
+    "numba": "the HDR merge's compiled passes (images larger than an ROI crop)",
+    "scipy": "numba's array functions (and analysis)",
 }
 
 
@@ -48,3 +51,28 @@ def test_a_simulated_servo_run_imports_nothing_it_does_not_need_before_its_first
     assert "rig.run.runner" in loaded and "simulator.rig" in loaded  # the probe did import the run
     early = {m: why for m, why in NOT_BEFORE_THE_FIRST_READING.items() if m in loaded}
     assert not early, f"imported before the first reading, though only needed for: {early}"
+
+
+# A short simulated run on ROI crops, through the command: its merges run in numpy, so numba never loads (its
+# import and start-up cost about a second before the first reading). An empty numba cache: nothing compiles.
+RUN = f"""
+import json, sys
+from gonio.cli import main
+sweep, out = sys.argv[1], sys.argv[2]
+code = main(["run", sweep, "--rig", {str(ROOT / "examples" / "rig_simulated.toml")!r}, "--out", out, "--quiet"])
+print(json.dumps([code, sorted(m for m in sys.modules if m.split(".")[0] in ("numba", "llvmlite", "scipy"))]))
+"""
+
+
+def test_a_short_simulated_run_on_roi_crops_never_imports_numba(tmp_path: Path) -> None:
+    sweep = tmp_path / "sweep.toml"
+    sweep.write_text('name = "short"\n[sweep]\nkind = "grid"\ntheta_i_deg = [30.0]\ntheta_o_deg = [20.0, 40.0]\n'
+                     'phi_o_deg = [180.0]\nisotropic = true\n[capture]\ntarget_snr = 100.0\n')  # fmt: skip
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba"), "HOME": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", RUN, str(sweep), str(tmp_path / "run")], capture_output=True,
+                         text=True, cwd=ROOT, timeout=600, env=env)  # fmt: skip
+    assert out.returncode == 0, out.stderr[-3000:]
+    code, loaded = json.loads(out.stdout.strip().splitlines()[-1])
+    assert code == 0 and (tmp_path / "run" / "journal.jsonl").exists()
+    assert loaded == [], f"a run on ROI crops imported {loaded}"
+    assert "compiling kernels" not in out.stderr

@@ -13,7 +13,7 @@ from rig.run.progress import Eta, format_eta
 from rig.run.runner import Runner
 from rig.run.session import capture_settings, make_plan, manifest, options_for
 from rig.run.store import RunStore
-from rig.run.warm_up import kernels_cached, warm_up
+from rig.run.warm_up import kernels_cached, notify_before_compiling, warm_up
 from simulator.from_config import rig_from
 from tests.run_helpers import in_plane_sweep, open_link, sim_rig
 
@@ -131,8 +131,34 @@ def test_a_run_with_nothing_left_to_measure_does_not_warm_up(tmp_path: Path, mon
     store.close()
 
 
-def test_the_warm_up_loads_the_merge_kernels_into_the_cache() -> None:
+def test_the_compiled_passes_load_at_the_first_large_merge_after_the_notice_if_uncached(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import numpy as np
+
+    import acquisition.hdr.kernel as kernel
+    from acquisition.hdr.merge import merge_linear
     from acquisition.noise import SensorNoise
 
-    warm_up(SensorNoise())
-    assert kernels_cached()  # compiled with cache=True, so the next process loads instead of compiling
+    noise = SensorNoise()
+
+    def bracket(side: int) -> list[Frame]:
+        data = np.full((side, side, 3), noise.black_level_dn + 300, dtype=np.uint16)
+        data[0, 0] += 1
+        return [Frame(data, "linear", t, black_level=noise.black_level_dn, white_level=noise.white_level_dn)
+                for t in (0.01, 0.04)]  # fmt: skip
+
+    shown: list[str] = []
+    warm_up(noise)
+    monkeypatch.setattr(kernel, "cached", lambda: False)  # as on a first run
+    notify_before_compiling(lambda: shown.append("compiling"))
+    merge_linear(bracket(8), noise)  # an ROI crop: the numpy pass, nothing to compile
+    assert shown == []
+    merge_linear(bracket(64), noise)  # 12288 values a frame: the compiled passes
+    merge_linear(bracket(64), noise, weighting="inverse_variance")
+    assert shown == ["compiling"]  # once
+    monkeypatch.undo()
+    shown.clear()
+    notify_before_compiling(lambda: shown.append("compiling"))
+    merge_linear(bracket(64), noise)
+    assert shown == [] and kernels_cached()  # compiled with cache=True: the next process loads, not compiles
