@@ -45,7 +45,7 @@ from rig.run.store import MANIFEST
 
 if TYPE_CHECKING:
     from analysis.figure_pool import Standby
-    from analysis.report_plots import Figures
+    from analysis.report_files import Figures
 
 
 def load_and_fit(

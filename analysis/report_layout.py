@@ -4,7 +4,8 @@ Constrained layout measured every tick label of every panel to place them, twice
 ``gonio analyze``'s time. The report's figures are regular grids with labels of known size, so fixed margins
 (room for a y label and its tick labels on the left, an x label below, a title above, a legend row or a
 colour bar where asked) place them as well at no cost. No pyplot state: each figure is its own object.
-Also here: what every figure writer shares (the written file, saving PNG and optional SVG, channel colours).
+Also here: what every figure writer shares (saving PNG and optional SVG, channel colours); the written file is
+analysis/report_files.py's FigureFile.
 """
 
 from __future__ import annotations
@@ -84,16 +85,6 @@ def legend_below(fig: Figure, handles: list, labels: list[str], ncol: int) -> No
     """A figure legend centred in the bottom strip Margins.legend reserved."""
     fig.legend(handles, labels, loc="lower center", bbox_to_anchor=(0.5, 0.0), ncol=max(ncol, 1), fontsize=8,
                frameon=False)  # fmt: skip
-
-
-@dataclass(frozen=True)
-class FigureFile:
-    """A written figure: its PNG, its SVG (or None) and a one-line caption."""
-
-    name: str
-    png: Path
-    svg: Path | None
-    caption: str
 
 
 def eval_channels(brdf: BRDF, wi: Array, wo: Array, channels: int) -> Array:

@@ -20,10 +20,10 @@ from matplotlib.axes import Axes
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, MaxNLocator, NullLocator
 
+from analysis.report_files import FigureFile, Slice
 from analysis.report_layout import (
     CANDIDATE_COLOURS,
     CHANNEL_COLOURS,
-    FigureFile,
     Margins,
     eval_channels,
     legend_below,  # fmt: skip
@@ -34,7 +34,6 @@ from analysis.result import Analysis
 from model.geometry import degrees_to_vector, to_half_diff, vector_to_spherical
 
 Array = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.intp]
 
 PLANE_TOL_DEG = 2.0
 MAX_SLICES = 6
@@ -73,15 +72,6 @@ def angles_of(wi: Array, wo: Array) -> Angles:
     # An in-plane pair a servo tick off the plane lands at phi_d = 180 - eps, the same azimuth as 0 + eps.
     pd = np.where(pd > 180.0 - PHI_D_SNAP_DEG, pd - 180.0, pd)
     return Angles(ti, pi, to, po, side * to, off, th, td, np.maximum(pd, 0.0))
-
-
-@dataclass(frozen=True)
-class Slice:
-    """The samples (indices) in the plane of incidence at ``theta_i_deg`` +- ``tol_deg``."""
-
-    theta_i_deg: float
-    tol_deg: float
-    index: IntArray
 
 
 def slices(ang: Angles, plane_tol_deg: float = PLANE_TOL_DEG, max_slices: int = MAX_SLICES) -> tuple[Slice, ...]:
