@@ -27,6 +27,8 @@ Array = npt.NDArray[np.float64]
 #: Okabe-Ito colours: channels r, g, b, then candidates.
 CHANNEL_COLOURS = ("#D55E00", "#009E73", "#0072B2")
 CANDIDATE_COLOURS = ("#E69F00", "#56B4E9", "#CC79A7", "#F0E442", "#999999", "#882255")
+#: zlib compression level of the PNG figures (see save_figure).
+PNG_LEVEL = 3
 #: Salt of the SVG element ids (any fixed string: ids must not change between runs).
 SVG_SALT = "gonio"
 
@@ -99,7 +101,9 @@ def eval_channels(brdf: BRDF, wi: Array, wo: Array, channels: int) -> Array:
 def save_figure(fig: Figure, out: Path, name: str, svg: bool) -> tuple[Path, Path | None]:
     """Write NAME.png (and NAME.svg when asked: it costs as much again and is rarely opened)."""
     png, svg_path = out / f"{name}.png", out / f"{name}.svg"
-    write_atomic(png, lambda tmp: fig.savefig(tmp, format="png", dpi=100))
+    # zlib level 3, not PIL's 6: the same pixels, files 5 % larger, and a third less of the encoding's time
+    # (0.17 of the six figures' 1.6 CPU s for a 1000-point run).
+    write_atomic(png, lambda tmp: fig.savefig(tmp, format="png", dpi=100, pil_kwargs={"compress_level": PNG_LEVEL}))
     if not svg:
         svg_path.unlink(missing_ok=True)  # a stale copy from an earlier --svg run would not match the PNG
         return png, None
