@@ -89,6 +89,10 @@ def _export_modules() -> None:
 
 
 def _analyze(args: argparse.Namespace) -> int:
+    import gc
+
+    # Paused while this process and the standbys import (analysis.figure_pool.imports_done resumes it).
+    gc.disable()
     import model.fit.solve  # noqa: F401  (numpy and scipy, which every process needs: loaded once, before the forks)
     from analysis.figure_pool import Standby
 
@@ -105,7 +109,10 @@ def _analyze(args: argparse.Namespace) -> int:
 def _analyze_with(args: argparse.Namespace, standby: Standby | None, exporter: Standby | None = None) -> int:
     from analysis.analyze import default_out, load_and_fit, stderr_log, write_report
     from analysis.batch.records import staged_dir
+    from analysis.figure_pool import imports_done
     from analysis.ladder import parse_models
+
+    imports_done()
 
     log = None if args.quiet else stderr_log
     models = parse_models(args.models) if args.models else None
