@@ -197,8 +197,9 @@ def test_reading_and_fitting_a_run_loads_neither_plots_nor_numba_nor_mitsuba(gol
 @pytest.mark.mitsuba
 def test_a_report_from_forked_workers_is_the_same_bytes(gold_report: tuple[Analysis, Path], gold_run: Path,
                                                         tmp_path: Path) -> None:
-    # gonio analyze's default (--jobs 2) in a fresh process, where forking is safe: the exports made in a forked
-    # child, the figures here and in a worker; the same files as drawn and exported one after the other.
+    # gonio analyze's default (--jobs 2) in a fresh process, where forking is safe: the exports made in a standby
+    # forked before the fit, the figures in another and its worker; the same files as drawn and exported one after
+    # the other.
     _, page = gold_report
     out = tmp_path / "forked"
     gonio = Path(sys.executable).with_name("gonio")
@@ -207,6 +208,24 @@ def test_a_report_from_forked_workers_is_the_same_bytes(gold_report: tuple[Analy
                           timeout=900)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert {"fit.json", "index.html", "figures/slices.png", "export/material.json"} <= set(same_files(page.parent, out))
+
+
+@pytest.mark.mitsuba
+def test_the_command_leaves_plots_and_mitsuba_to_its_standbys(gold_run: Path, tmp_path: Path) -> None:
+    # Where forking is safe, gonio analyze's own process fits and writes the page: matplotlib loads in the figures'
+    # standby and Mitsuba in the exports', each while this one fits; its collector runs again after the imports.
+    out = tmp_path / "report"
+    code = (f"import gc, json, sys\nfrom gonio import cli\ncode = cli.main(['analyze', {str(gold_run)!r}, '--out', "
+            f"{str(out)!r}, '--quiet', '--jobs', '2', '--models', 'lambert,ggx_conductor', '--starts', '2'])\n"
+            "print(json.dumps([code, gc.isenabled(), sorted({m.split('.')[0] for m in sys.modules} & "
+            "{'matplotlib', 'mitsuba', 'drjit'})]))")  # fmt: skip
+    done = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).resolve().parents[2], capture_output=True,
+                          text=True, timeout=900)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout.splitlines()[-1]) == [0, True, []]
+    assert {"slices.png", "truth.png"} <= {p.name for p in (out / "figures").iterdir()}
+    assert (out / "export" / "mitsuba_bsdf.xml").is_file() and 'href="export/material.json"' in (
+        out / "index.html").read_text()
 
 
 @pytest.mark.mitsuba
