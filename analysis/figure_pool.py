@@ -8,7 +8,9 @@ not fork-safe) and Mitsuba (LLVM's threads) not loaded. Otherwise, and for a sin
 the figures are drawn one after the other in this process; the files are the same bytes either way.
 
 The same holds for one call: :class:`ForkedCall` runs it in a forked child and hands back its (pickled) result,
-which is how ``gonio analyze`` exports the chosen model (Mitsuba, a CPU second or more) while this process draws.
+which is how ``gonio analyze`` exports the chosen model (Mitsuba, a CPU second or more) while this process draws
+when it has no :class:`Standby` for the exports. Each figure is drawn with the garbage collector paused
+(:func:`without_gc`).
 :func:`start_draws` forks the figure workers and returns at once; :meth:`PendingDraws.finish` waits for them,
 drawing here, meanwhile, any figure no worker has begun when this process has matplotlib loaded (it then forks
 one worker fewer: loading matplotlib only to help would cost more than it saves).
@@ -237,9 +239,10 @@ class Standby:
     """A process forked early, which loads what its work will need (``prepare``) while this one goes on, then runs
     the one call :meth:`run` hands it (cloudpickled: it may close over anything) and hands back its result.
 
-    ``gonio analyze`` forks one before it fits, to load matplotlib and the report's modules on the second core while
-    this process loads scipy and fits; the figures are then drawn there while this process exports. Where forking
-    is not safe, or the call cannot be pickled, :meth:`result` makes the call here.
+    ``gonio analyze`` forks two before it fits, one to load matplotlib and the report's modules and one to load
+    Mitsuba, on the second core while this process fits; the figures are then drawn in the first while the second
+    exports. Where forking is not safe, or the call cannot be pickled, :meth:`result` makes the call here. After
+    ``prepare`` the standby freezes what it imported and runs its collector again (:func:`imports_done`).
     """
 
     def __init__(self, prepare: Callable[[], None]) -> None:
