@@ -185,6 +185,19 @@ def test_the_same_inputs_give_the_same_bytes(gold_report: tuple[Analysis, Path],
     assert "<dc:date>" not in (again.parent / "figures" / "polar.svg").read_text()
 
 
+def test_the_slices_log_axes_make_only_the_ticks_in_view() -> None:
+    from matplotlib.ticker import LogLocator
+
+    from analysis.report_slices import _InViewLogLocator
+
+    for lo, hi in [(0.01, 3.0), (1.3e-4, 0.5), (0.2, 0.9), (2.0, 2000.0)]:
+        for subs in [(1.0, 2.0, 5.0), (1.0,)]:
+            full = LogLocator(subs=subs, numticks=8).tick_values(lo, hi)
+            inside = [t for t in full if lo * (1 - 1e-9) <= t <= hi * (1 + 1e-9)]
+            assert list(_InViewLogLocator(subs=subs, numticks=8).tick_values(lo, hi)) == inside
+            assert len(inside) < len(full)  # LogLocator's own reach beyond the view, built and never drawn
+
+
 @pytest.mark.mitsuba
 def test_reading_and_fitting_a_run_loads_neither_plots_nor_numba_nor_mitsuba(gold_run: Path) -> None:
     from tests.analysis.test_analyze_speed import loaded_after
