@@ -38,10 +38,12 @@ def _draw(i: int) -> Any:
 
 
 def imports_done() -> None:
-    """Freeze what the imports made and collect again: ``gonio analyze`` pauses the collector while it imports.
+    """In a standby after its imports: freeze what they made and collect again (``gonio analyze`` pauses the
+    collector while its processes import).
 
     An import is many objects that live as long as the process, so the collector's passes over them (a tenth of
-    importing scipy and matplotlib) free nothing; frozen, later full passes skip them too.
+    importing scipy and matplotlib) free nothing; frozen, later full passes skip them too. Only for a forked
+    process that ends with its work: frozen objects are never collected.
     """
     gc.freeze()
     gc.enable()

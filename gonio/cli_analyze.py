@@ -91,28 +91,40 @@ def _export_modules() -> None:
 def _analyze(args: argparse.Namespace) -> int:
     import gc
 
-    # Paused while this process and the standbys import (analysis.figure_pool.imports_done resumes it).
+    # The garbage collector is paused while this process and the standbys import: an import is many objects that
+    # live as long as the process, and the collector's passes over them (a tenth of importing scipy and
+    # matplotlib) free nothing. The standbys resume theirs after their imports (figure_pool.imports_done), this
+    # process after its own (below); a caller that had paused it keeps it paused.
+    collecting = gc.isenabled()
     gc.disable()
-    import model.fit.solve  # noqa: F401  (numpy and scipy, which every process needs: loaded once, before the forks)
-    from analysis.figure_pool import Standby
+    try:
+        import model.fit.solve  # noqa: F401  (numpy and scipy, which every process needs: loaded once, before the forks)
+        from analysis.figure_pool import Standby
 
-    # The figures' process loads matplotlib and the report's modules, the exports' process Mitsuba, while this one
-    # loads the run's configuration and fits; they draw and export once the fit is handed to them (write_report).
-    # The figures' standby is forked first: it forks a worker of its own, which must not inherit Mitsuba.
-    with (
-        Standby(_figure_modules) if args.jobs > 1 else contextlib.nullcontext() as standby,
-        Standby(_export_modules) if args.jobs > 1 else contextlib.nullcontext() as exporter,
-    ):
-        return _analyze_with(args, standby, exporter)
+        # The figures' process loads matplotlib and the report's modules, the exports' process Mitsuba, while this
+        # one loads the run's configuration and fits; they draw and export once the fit is handed to them
+        # (write_report). The figures' standby is forked first: it forks a worker of its own, which must not
+        # inherit Mitsuba.
+        with (
+            Standby(_figure_modules) if args.jobs > 1 else contextlib.nullcontext() as standby,
+            Standby(_export_modules) if args.jobs > 1 else contextlib.nullcontext() as exporter,
+        ):
+            return _analyze_with(args, standby, exporter, collecting)
+    finally:
+        if collecting:
+            gc.enable()
 
 
-def _analyze_with(args: argparse.Namespace, standby: Standby | None, exporter: Standby | None = None) -> int:
+def _analyze_with(args: argparse.Namespace, standby: Standby | None, exporter: Standby | None = None,
+                  collecting: bool = True) -> int:  # fmt: skip
+    import gc
+
     from analysis.analyze import default_out, load_and_fit, stderr_log, write_report
     from analysis.batch.records import staged_dir
-    from analysis.figure_pool import imports_done
     from analysis.ladder import parse_models
 
-    imports_done()
+    if collecting:
+        gc.enable()  # not frozen as the standbys' imports are: this process may be a caller's that lives on
 
     log = None if args.quiet else stderr_log
     models = parse_models(args.models) if args.models else None
