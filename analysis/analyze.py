@@ -45,7 +45,7 @@ from rig.run.store import MANIFEST
 
 if TYPE_CHECKING:
     from analysis.figure_pool import Standby
-    from analysis.report_plots import Figures
+    from analysis.report_files import Figures
 
 
 def load_and_fit(
@@ -161,7 +161,7 @@ def default_out(source: str | Path) -> Path:
 def write_report(
     a: Analysis, out: str | Path, *, y_scale: str = "auto", merl: bool = False, log: Log | None = None,
     mitsuba_plugin: bool = False, svg: bool = False, progress: bool = False, jobs: int = 1, mitsuba_stock: str = "auto",
-    standby: Standby | None = None,
+    standby: Standby | None = None, exporter: Standby | None = None,
 ) -> Path:
     """Write figures/ (PNG; SVG too if ``svg``), fit.json, export/ (the chosen model for Mitsuba, glTF, optionally
     MERL) and index.html; ``progress``: a bar with ETA over the figures; ``jobs``: processes drawing figures.
@@ -172,7 +172,9 @@ def write_report(
     With ``jobs`` > 1 the figures and the exports are made side by side (analysis/figure_pool.py, where it is
     safe): the figures in ``standby`` (a process forked before the fit that loads matplotlib meanwhile, as
     ``gonio analyze`` starts one) while the exports are made here, or else the exports in a forked child while the
-    figures are drawn here and in ``jobs`` - 1 workers. The files are the same bytes either way.
+    figures are drawn here and in ``jobs`` - 1 workers. With a forked ``exporter`` as well (a standby that loaded
+    Mitsuba during the fit) the exports are made there, and this process only waits and writes the page. The files
+    are the same bytes either way.
     """
     from analysis.figure_pool import ForkedCall
 
@@ -201,7 +203,11 @@ def write_report(
     say(f"exporting the chosen model to {out / 'export'}" + (" (with a 35 MB MERL table)" if merl else ""))
     if standby is not None and standby.forked and jobs > 1:
         standby.run(figures_of)
-        exports, notes = export()
+        if exporter is not None and exporter.forked:
+            exporter.run(export)
+            exports, notes = exporter.result()
+        else:
+            exports, notes = export()
         figures = standby.result()
     else:
         # Forked before matplotlib loads here, so both load side by side.

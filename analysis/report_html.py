@@ -26,7 +26,7 @@ from model.fit.solve import FitResult
 from model.version import gonio_version
 
 if TYPE_CHECKING:  # the page reads the written figures' paths and captions; it draws nothing (no matplotlib)
-    from analysis.report_plots import Figures
+    from analysis.report_files import Figures
 
 #: What each fitted field means; all BRDF model parameters are dimensionless.
 MEANINGS = {

@@ -4,7 +4,8 @@ Constrained layout measured every tick label of every panel to place them, twice
 ``gonio analyze``'s time. The report's figures are regular grids with labels of known size, so fixed margins
 (room for a y label and its tick labels on the left, an x label below, a title above, a legend row or a
 colour bar where asked) place them as well at no cost. No pyplot state: each figure is its own object.
-Also here: what every figure writer shares (the written file, saving PNG and optional SVG, channel colours).
+Also here: what every figure writer shares (saving PNG and optional SVG, channel colours); the written file is
+analysis/report_files.py's FigureFile.
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ Array = npt.NDArray[np.float64]
 #: Okabe-Ito colours: channels r, g, b, then candidates.
 CHANNEL_COLOURS = ("#D55E00", "#009E73", "#0072B2")
 CANDIDATE_COLOURS = ("#E69F00", "#56B4E9", "#CC79A7", "#F0E442", "#999999", "#882255")
+#: zlib compression level of the PNG figures (see save_figure).
+PNG_LEVEL = 3
 #: Salt of the SVG element ids (any fixed string: ids must not change between runs).
 SVG_SALT = "gonio"
 
@@ -86,16 +89,6 @@ def legend_below(fig: Figure, handles: list, labels: list[str], ncol: int) -> No
                frameon=False)  # fmt: skip
 
 
-@dataclass(frozen=True)
-class FigureFile:
-    """A written figure: its PNG, its SVG (or None) and a one-line caption."""
-
-    name: str
-    png: Path
-    svg: Path | None
-    caption: str
-
-
 def eval_channels(brdf: BRDF, wi: Array, wo: Array, channels: int) -> Array:
     """f_r (N, channels) in 1/sr of ``brdf`` at wi (3,) or (N, 3) and wo (N, 3), grey models repeated per channel."""
     f = np.asarray(brdf.eval(np.broadcast_to(wi, wo.shape), wo), dtype=np.float64)
@@ -108,7 +101,9 @@ def eval_channels(brdf: BRDF, wi: Array, wo: Array, channels: int) -> Array:
 def save_figure(fig: Figure, out: Path, name: str, svg: bool) -> tuple[Path, Path | None]:
     """Write NAME.png (and NAME.svg when asked: it costs as much again and is rarely opened)."""
     png, svg_path = out / f"{name}.png", out / f"{name}.svg"
-    write_atomic(png, lambda tmp: fig.savefig(tmp, format="png", dpi=100))
+    # zlib level 3, not PIL's 6: the same pixels, files 5 % larger, and a third less of the encoding's time
+    # (0.17 of the six figures' 1.6 CPU s for a 1000-point run).
+    write_atomic(png, lambda tmp: fig.savefig(tmp, format="png", dpi=100, pil_kwargs={"compress_level": PNG_LEVEL}))
     if not svg:
         svg_path.unlink(missing_ok=True)  # a stale copy from an earlier --svg run would not match the PNG
         return png, None

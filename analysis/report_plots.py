@@ -14,7 +14,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +24,8 @@ from matplotlib.patches import Circle
 
 from analysis.figure_pool import PendingDraws, start_draws
 from analysis.progress import stage_bar
-from analysis.report_layout import FigureFile, Margins, eval_channels, panel_figure, save_figure
+from analysis.report_files import CELL_PHI_D_DEG, CELL_THETA_DEG, Coverage, FigureFile, Figures
+from analysis.report_layout import Margins, eval_channels, panel_figure, save_figure
 from analysis.report_slices import Angles, Slice, angles_of, in_plane_directions, plot_polar, plot_slices, slices
 from analysis.report_truth import compare_truth, truth_figure
 from analysis.report_uncertainty import uncertainty_figure
@@ -37,36 +37,6 @@ __all__ = ["Angles", "Coverage", "FigureFile", "Figures", "PendingFigures", "Sli
            "in_plane_directions", "signed_rms", "slices", "start_figures", "write_figures"]
 
 CLIP_SIGMA = 5.0
-#: Coverage grid cells (degrees) in theta_h, theta_d and phi_d.
-CELL_THETA_DEG, CELL_PHI_D_DEG = 10.0, 20.0
-
-
-@dataclass(frozen=True)
-class Coverage:
-    """Occupied cells of coarse grids over (theta_h, theta_d) and (theta_h, phi_d), with the cell sizes (deg)."""
-
-    occupied_hd: npt.NDArray[np.bool_]
-    occupied_hp: npt.NDArray[np.bool_]
-    cell_theta_deg: float = CELL_THETA_DEG
-    cell_phi_d_deg: float = CELL_PHI_D_DEG
-
-    @property
-    def fraction_hd(self) -> float:
-        """Fraction of (theta_h, theta_d) cells holding at least one sample."""
-        return float(self.occupied_hd.mean())
-
-    @property
-    def fraction_hp(self) -> float:
-        """Fraction of (theta_h, phi_d) cells holding at least one sample."""
-        return float(self.occupied_hp.mean())
-
-    def text(self) -> str:
-        """One sentence for the report."""
-        c, p = self.cell_theta_deg, self.cell_phi_d_deg
-        hd, hp = self.occupied_hd, self.occupied_hp
-        return (f"{int(hd.sum())} of {hd.size} (theta_h, theta_d) cells of {c:g}° x {c:g}° hold a sample "
-                f"({self.fraction_hd:.0%}); {int(hp.sum())} of {hp.size} (theta_h, phi_d) cells of {c:g}° x {p:g}° "
-                f"({self.fraction_hp:.0%}).")  # fmt: skip
 
 
 def _edges() -> tuple[Array, Array]:
@@ -79,15 +49,6 @@ def coverage(ang: Angles) -> Coverage:
     hd, _, _ = np.histogram2d(ang.theta_h, ang.theta_d, bins=(et, et))
     hp, _, _ = np.histogram2d(ang.theta_h, ang.phi_d, bins=(et, ep))
     return Coverage(hd > 0, hp > 0)
-
-
-@dataclass(frozen=True)
-class Figures:
-    """Every figure of the report, the slices they drew and the coverage numbers."""
-
-    files: tuple[FigureFile, ...]
-    slices: tuple[Slice, ...]
-    coverage: Coverage
 
 
 def _layout() -> str:

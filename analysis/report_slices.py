@@ -9,6 +9,8 @@ forward of the light (:func:`in_plane_directions`), as in the sweep files and ``
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,10 +22,10 @@ from matplotlib.axes import Axes
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, MaxNLocator, NullLocator
 
+from analysis.report_files import FigureFile, Slice
 from analysis.report_layout import (
     CANDIDATE_COLOURS,
     CHANNEL_COLOURS,
-    FigureFile,
     Margins,
     eval_channels,
     legend_below,  # fmt: skip
@@ -34,7 +36,6 @@ from analysis.result import Analysis
 from model.geometry import degrees_to_vector, to_half_diff, vector_to_spherical
 
 Array = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.intp]
 
 PLANE_TOL_DEG = 2.0
 MAX_SLICES = 6
@@ -75,15 +76,6 @@ def angles_of(wi: Array, wo: Array) -> Angles:
     return Angles(ti, pi, to, po, side * to, off, th, td, np.maximum(pd, 0.0))
 
 
-@dataclass(frozen=True)
-class Slice:
-    """The samples (indices) in the plane of incidence at ``theta_i_deg`` +- ``tol_deg``."""
-
-    theta_i_deg: float
-    tol_deg: float
-    index: IntArray
-
-
 def slices(ang: Angles, plane_tol_deg: float = PLANE_TOL_DEG, max_slices: int = MAX_SLICES) -> tuple[Slice, ...]:
     """In-plane slices at the data's clustered incidences (or a fixed grid when they do not cluster)."""
     ti = np.sort(ang.theta_i)
@@ -114,6 +106,22 @@ def _slice_dirs(theta_i_deg: float, n: int = 357) -> tuple[Array, Array, Array]:
     to = np.linspace(-89.0, 89.0, n)
     wi, wo = in_plane_directions(theta_i_deg, to)
     return to, wi, wo
+
+
+class _InViewLogLocator(LogLocator):
+    """LogLocator's ticks within the view only: it adds one beyond each end, which matplotlib builds a tick (a
+    dozen objects, with its label formatted) for and then does not draw."""
+
+    def tick_values(self, vmin: float, vmax: float) -> Sequence[float]:
+        """The ticks (1/sr) between vmin and vmax, ends included to well within matplotlib's own tolerance."""
+        ticks = np.asarray(super().tick_values(vmin, vmax), dtype=np.float64)
+        lo, hi = sorted((vmin, vmax))
+        if not (lo > 0 and np.isfinite(hi)):
+            return list(ticks)
+        margin = 1e-6 * (math.log10(hi) - math.log10(lo))
+        log_t = np.log10(np.where(ticks > 0, ticks, np.nan))
+        keep = (log_t >= math.log10(lo) - margin) & (log_t <= math.log10(hi) + margin)
+        return list(ticks[keep])
 
 
 def _y_scale(values: Array, y_scale: str) -> bool:
@@ -205,7 +213,7 @@ def _plot_slices(a: Analysis, ang: Angles, cuts: tuple[Slice, ...], out: Path, y
                 # Plain labels (the default mathtext ones cost seconds per figure), at 1-2-5 over up to two
                 # decades and at the decades beyond.
                 subs = (1.0, 2.0, 5.0) if top * 3 / bottom <= 150 else (1.0,)
-                ax.yaxis.set_major_locator(LogLocator(subs=subs, numticks=8))
+                ax.yaxis.set_major_locator(_InViewLogLocator(subs=subs, numticks=8))
                 ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
                 ax.yaxis.set_minor_locator(NullLocator())
             else:

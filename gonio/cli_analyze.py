@@ -78,20 +78,53 @@ def _figure_modules() -> None:
     import analysis.report_plots  # noqa: F401  (matplotlib and every figure's module)
 
 
+def _export_modules() -> None:
+    # Mitsuba's import and its variant's first load (about 0.45 CPU s) need no fit; an export that cannot load
+    # Mitsuba fails the same way when it runs, so nothing is raised here.
+    with contextlib.suppress(Exception):
+        import analysis.export  # noqa: F401  (Mitsuba, drjit)
+        from model.mitsuba.variant import pick_variant
+
+        pick_variant()
+
+
 def _analyze(args: argparse.Namespace) -> int:
-    import model.fit.solve  # noqa: F401  (numpy and scipy, which both processes need: loaded once, before the fork)
-    from analysis.figure_pool import Standby
+    import gc
 
-    # The figures' process loads matplotlib and the report's modules on the second core while this one loads the
-    # run's configuration and fits; it draws once the fit is handed to it (write_report).
-    with Standby(_figure_modules) if args.jobs > 1 else contextlib.nullcontext() as standby:
-        return _analyze_with(args, standby)
+    # The garbage collector is paused while this process and the standbys import: an import is many objects that
+    # live as long as the process, and the collector's passes over them (a tenth of importing scipy and
+    # matplotlib) free nothing. The standbys resume theirs after their imports (figure_pool.imports_done), this
+    # process after its own (below); a caller that had paused it keeps it paused.
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        import model.fit.solve  # noqa: F401  (numpy and scipy, which every process needs: loaded once, before the forks)
+        from analysis.figure_pool import Standby
+
+        # The figures' process loads matplotlib and the report's modules, the exports' process Mitsuba, while this
+        # one loads the run's configuration and fits; they draw and export once the fit is handed to them
+        # (write_report). The figures' standby is forked first: it forks a worker of its own, which must not
+        # inherit Mitsuba.
+        with (
+            Standby(_figure_modules) if args.jobs > 1 else contextlib.nullcontext() as standby,
+            Standby(_export_modules) if args.jobs > 1 else contextlib.nullcontext() as exporter,
+        ):
+            return _analyze_with(args, standby, exporter, collecting)
+    finally:
+        if collecting:
+            gc.enable()
 
 
-def _analyze_with(args: argparse.Namespace, standby: Standby | None) -> int:
+def _analyze_with(args: argparse.Namespace, standby: Standby | None, exporter: Standby | None = None,
+                  collecting: bool = True) -> int:  # fmt: skip
+    import gc
+
     from analysis.analyze import default_out, load_and_fit, stderr_log, write_report
     from analysis.batch.records import staged_dir
     from analysis.ladder import parse_models
+
+    if collecting:
+        gc.enable()  # not frozen as the standbys' imports are: this process may be a caller's that lives on
 
     log = None if args.quiet else stderr_log
     models = parse_models(args.models) if args.models else None
@@ -102,7 +135,7 @@ def _analyze_with(args: argparse.Namespace, standby: Standby | None) -> int:
                      progress=not args.quiet)  # fmt: skip
     options = {"y_scale": args.y_scale, "merl": args.merl, "mitsuba_plugin": args.mitsuba_plugin, "svg": args.svg,
                "progress": not args.quiet, "jobs": args.jobs, "mitsuba_stock": args.mitsuba_stock,
-               "standby": standby}  # fmt: skip
+               "standby": standby, "exporter": exporter}  # fmt: skip
     if not whole:
         page = write_report(a, out, log=log, **options)
     else:

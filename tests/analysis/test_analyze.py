@@ -185,6 +185,19 @@ def test_the_same_inputs_give_the_same_bytes(gold_report: tuple[Analysis, Path],
     assert "<dc:date>" not in (again.parent / "figures" / "polar.svg").read_text()
 
 
+def test_the_slices_log_axes_make_only_the_ticks_in_view() -> None:
+    from matplotlib.ticker import LogLocator
+
+    from analysis.report_slices import _InViewLogLocator
+
+    for lo, hi in [(0.01, 3.0), (1.3e-4, 0.5), (0.2, 0.9), (2.0, 2000.0)]:
+        for subs in [(1.0, 2.0, 5.0), (1.0,)]:
+            full = LogLocator(subs=subs, numticks=8).tick_values(lo, hi)
+            inside = [t for t in full if lo * (1 - 1e-9) <= t <= hi * (1 + 1e-9)]
+            assert list(_InViewLogLocator(subs=subs, numticks=8).tick_values(lo, hi)) == inside
+            assert len(inside) < len(full)  # LogLocator's own reach beyond the view, built and never drawn
+
+
 @pytest.mark.mitsuba
 def test_reading_and_fitting_a_run_loads_neither_plots_nor_numba_nor_mitsuba(gold_run: Path) -> None:
     from tests.analysis.test_analyze_speed import loaded_after
@@ -197,8 +210,9 @@ def test_reading_and_fitting_a_run_loads_neither_plots_nor_numba_nor_mitsuba(gol
 @pytest.mark.mitsuba
 def test_a_report_from_forked_workers_is_the_same_bytes(gold_report: tuple[Analysis, Path], gold_run: Path,
                                                         tmp_path: Path) -> None:
-    # gonio analyze's default (--jobs 2) in a fresh process, where forking is safe: the exports made in a forked
-    # child, the figures here and in a worker; the same files as drawn and exported one after the other.
+    # gonio analyze's default (--jobs 2) in a fresh process, where forking is safe: the exports made in a standby
+    # forked before the fit, the figures in another and its worker; the same files as drawn and exported one after
+    # the other.
     _, page = gold_report
     out = tmp_path / "forked"
     gonio = Path(sys.executable).with_name("gonio")
@@ -207,6 +221,24 @@ def test_a_report_from_forked_workers_is_the_same_bytes(gold_report: tuple[Analy
                           timeout=900)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert {"fit.json", "index.html", "figures/slices.png", "export/material.json"} <= set(same_files(page.parent, out))
+
+
+@pytest.mark.mitsuba
+def test_the_command_leaves_plots_and_mitsuba_to_its_standbys(gold_run: Path, tmp_path: Path) -> None:
+    # Where forking is safe, gonio analyze's own process fits and writes the page: matplotlib loads in the figures'
+    # standby and Mitsuba in the exports', each while this one fits; its collector runs again after the imports.
+    out = tmp_path / "report"
+    code = (f"import gc, json, sys\nfrom gonio import cli\ncode = cli.main(['analyze', {str(gold_run)!r}, '--out', "
+            f"{str(out)!r}, '--quiet', '--jobs', '2', '--models', 'lambert,ggx_conductor', '--starts', '2'])\n"
+            "print(json.dumps([code, gc.isenabled(), sorted({m.split('.')[0] for m in sys.modules} & "
+            "{'matplotlib', 'mitsuba', 'drjit'})]))")  # fmt: skip
+    done = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).resolve().parents[2], capture_output=True,
+                          text=True, timeout=900)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout.splitlines()[-1]) == [0, True, []]
+    assert {"slices.png", "truth.png"} <= {p.name for p in (out / "figures").iterdir()}
+    assert (out / "export" / "mitsuba_bsdf.xml").is_file() and 'href="export/material.json"' in (
+        out / "index.html").read_text()
 
 
 @pytest.mark.mitsuba

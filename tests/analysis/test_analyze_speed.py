@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from analysis.figure_pool import ForkedCall, Standby
+from analysis.figure_pool import ForkedCall, Standby, without_gc
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Modules an analysis of an existing table has no use for before it draws or exports: the measuring side of a run
@@ -125,3 +125,29 @@ def test_a_forked_call_runs_here_when_forking_is_not_safe() -> None:
     finally:
         stop.set()
         other.join()
+
+
+def test_a_figure_is_drawn_with_the_collector_paused_and_its_cycles_freed_after() -> None:
+    import gc
+    import weakref
+
+    class Node:
+        me: object = None
+
+    seen: list[bool] = []
+    refs: list[weakref.ref[Node]] = []
+
+    def draw() -> int:
+        seen.append(gc.isenabled())
+        node = Node()
+        node.me = node  # a reference cycle, as a figure's artists make: only the collector frees it
+        refs.append(weakref.ref(node))
+        return 7
+
+    assert gc.isenabled()
+    assert without_gc(draw) == 7 and seen == [False] and gc.isenabled() and refs[0]() is None
+    gc.disable()
+    try:
+        assert without_gc(draw) == 7 and not gc.isenabled()  # a caller's paused collector stays paused
+    finally:
+        gc.enable()
