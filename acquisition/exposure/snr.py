@@ -8,7 +8,7 @@ above black at gain 1, exposures in seconds.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -106,6 +106,46 @@ def _mean_level_snr(
         return 0.0  # the mean clips in every frame: not measurable
     gt = gain * total_t
     return level.mean_dn_per_s / math.sqrt(num / (gt * gt) / level.n_pixels)
+
+
+def single_exposure_snr(
+    level: RoiLevel, noise: SensorNoise, gain: float = 1.0, dark_frames: int = 0
+) -> Callable[[float, int], float]:
+    """``roi_snr(level, noise, [t] * n, gain, dark_frames)`` as a function of (t in seconds, n): the same bits.
+
+    The planner's bisection asks this ~25 times a channel per plan with one exposure repeated; what does not
+    depend on t is worked out once here. A level with a pixel distribution goes through ``roi_snr`` itself.
+    """
+    if level.rates_dn_per_s or level.mean_dn_per_s == 0:
+        return lambda t, n: roi_snr(level, noise, [t] * n, gain, dark_frames)
+    sat = noise.saturation_dn(gain)
+    dr = _dark_rate(noise, gain)
+    # The same operations in the same order as roi_snr's peak filter and _mean_level_snr for one frame kind.
+    peak_rate = level.peak_dn_per_s * gain + dr
+    mean = level.mean_dn_per_s
+    rg = mean * gain
+    g = noise.e_per_dn / gain
+    g2 = g**2
+    read = noise.read_noise_e**2
+    dc = noise.dark_current_e_per_s
+    n_px = level.n_pixels
+    zero_g = 0.0 / g
+
+    def snr(t: float, n: int) -> float:
+        t = float(t)
+        if peak_rate * t > sat or (rg + dr) * t > sat:
+            return 0.0  # no frame the peak (or the mean) leaves unclipped
+        dark_e = dc * t
+        var = n * (max(rg * t, 0.0) / g + (read + dark_e) / g2 + 1.0 / 12.0)
+        if dark_frames:
+            var = var + n * n * (zero_g + (read + dark_e) / g2 + 1.0 / 12.0) / dark_frames
+        total_t = 0.0 + n * t
+        if total_t <= 0:
+            return 0.0
+        gt = gain * total_t
+        return mean / math.sqrt((0.0 + var) / (gt * gt) / n_px)
+
+    return snr
 
 
 def exposure_for_snr(

@@ -16,7 +16,14 @@ import pytest
 
 from acquisition.exposure import plan as plan_module
 from acquisition.exposure.plan import plan_exposure
-from acquisition.exposure.snr import _dark_rate, _frames, _merged_variance, exposure_for_snr, roi_snr
+from acquisition.exposure.snr import (
+    _dark_rate,
+    _frames,
+    _merged_variance,
+    exposure_for_snr,
+    roi_snr,
+    single_exposure_snr,
+)
 from acquisition.exposure.spec import CameraTiming, ExposureError, ExposurePlan, RoiLevel
 from acquisition.noise import SensorNoise
 
@@ -64,6 +71,8 @@ def oracle_plan(monkeypatch: pytest.MonkeyPatch, *args: object, **kwargs: object
     with monkeypatch.context() as m:
         m.setattr(plan_module, "_shortest", oracle_shortest)
         m.setattr(plan_module, "roi_snr", oracle_roi_snr)
+        m.setattr(plan_module, "single_exposure_snr",
+                  lambda lv, noise, gain=1.0, darks=0: lambda t, n: oracle_roi_snr(lv, noise, [t] * n, gain, darks))
         return plan_exposure(*args, **kwargs)  # type: ignore[arg-type]
 
 
@@ -142,3 +151,17 @@ def test_scalar_mean_level_snr_matches_the_numpy_merge_bit_for_bit() -> None:
         ts = list(10 ** rng.uniform(-5, 0, size=int(rng.integers(1, 5))))
         gain, darks = float(rng.choice([1.0, 2.5])), int(rng.integers(0, 3))
         assert roi_snr(level, noise, ts, gain, darks) == oracle_roi_snr(level, noise, ts, gain, darks)
+
+
+def test_single_exposure_snr_matches_roi_snr_bit_for_bit() -> None:
+    rng = np.random.default_rng(11)
+    for noise, _ in itertools.product(NOISES, range(200)):
+        peak = float(10 ** rng.uniform(0, 7))
+        level = RoiLevel(peak, peak * float(rng.choice([0.0, rng.uniform(0.01, 1), 1.0])), int(rng.integers(1, 500)))
+        gain, darks = float(rng.choice([1.0, 2.5, 4.0])), int(rng.integers(0, 3))
+        snr = single_exposure_snr(level, noise, gain, darks)
+        for t in 10 ** rng.uniform(-6, 1, size=8):  # some clip the peak, some the mean, most neither
+            n = int(rng.integers(1, 8))
+            assert snr(float(t), n) == oracle_roi_snr(level, noise, [float(t)] * n, gain, darks)
+    spread = RoiLevel(100.0, 55.0, 4, 10.0, (10.0, 50.0, 100.0), (0.25, 0.5, 0.25))
+    assert single_exposure_snr(spread, NOISES[0])(0.5, 3) == roi_snr(spread, NOISES[0], [0.5] * 3)
