@@ -49,7 +49,6 @@ import numpy.typing as npt
 
 from model.geometry import degrees_to_vector
 from rig.instrument.geometry import RigGeometry
-from rig.instrument.kinematics_scalar import forward_one
 from rig.instrument.kinematics_checks import (
     CheckDetails,
     SpotEllipse,
@@ -60,6 +59,7 @@ from rig.instrument.kinematics_checks import (
     view_reach,
     zenith_deg,
 )
+from rig.instrument.kinematics_scalar import forward_one
 from rig.instrument.kinematics_types import (
     BRANCHES,
     Angle,

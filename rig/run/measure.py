@@ -131,15 +131,21 @@ def level_of(hdr: HdrImage, roi: Box | None) -> Level:
     """
     h, w = hdr.radiance.shape[:2]
     rad = colour_planes(hdr, roi if roi is not None else (0, 0, w, h))
-    finite = rad[np.isfinite(rad)]
+    ok = np.isfinite(rad)
+    every = bool(ok.all())
+    finite = rad.reshape(-1) if every else rad[ok]  # the same values in the same order
     n = int(rad.shape[0] * rad.shape[1])
     if finite.size == 0:
         return Level(0.0, 0.0, 0.0, n)
     means: tuple[float, ...] = ()
     if rad.ndim == 3 and rad.shape[-1] > 1:
         # A clipped pixel is not finite; a channel with none left keeps the overall mean, not a NaN.
-        with np.errstate(invalid="ignore"):
-            per = np.nanmean(np.where(np.isfinite(rad), rad, np.nan).reshape(-1, rad.shape[-1]), axis=0)
+        planes = rad.reshape(-1, rad.shape[-1])
+        if every:  # nanmean's own steps where nothing is NaN: the channel sums over the pixel count
+            per = np.true_divide(planes.sum(axis=0), np.full(planes.shape[-1], planes.shape[0], dtype=np.intp))
+        else:
+            with np.errstate(invalid="ignore"):
+                per = np.nanmean(np.where(ok, rad, np.nan).reshape(-1, rad.shape[-1]), axis=0)
         means = tuple(float(m) if np.isfinite(m) else float(finite.mean()) for m in per)
     return Level(float(finite.max()), float(finite.mean()), float(max(np.percentile(finite, 1.0), 0.0)), n, means)
 
