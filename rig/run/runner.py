@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import gc
 import math
 import sys
 import time
@@ -118,7 +119,14 @@ class RunSummary:
 
 
 def _f(x: float) -> float:
-    return float(np.round(float(x), 9)) + 0.0
+    """``x`` rounded to 9 decimals as ``np.round`` does it (times 1e9, to the nearest even, over 1e9), -0.0 as 0.0.
+
+    In Python floats: numpy's call costs ~3 us, twelve times a point. The same bits (rig/run tests compare).
+    """
+    y = float(x) * 1e9
+    if not math.isfinite(y):  # round() has no integer for it; numpy's answer is inf or nan
+        return float(np.round(float(x), 9)) + 0.0
+    return float(round(y)) / 1e9 + 0.0
 
 
 class Runner:
@@ -228,6 +236,12 @@ class Runner:
         bar = tqdm(total=len(self.plan.points), initial=len(done), unit="pt", disable=not self.options.progress,
                    file=sys.stderr, dynamic_ncols=True,
                    bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")  # fmt: skip
+        # Objects alive now (the camera's renderer, compiled kernels, the plan) live as long as the run: a full
+        # collection walking them cost ~85 ms of the controller's thread (0.4 ms a point over 200 points) and
+        # frees none of them. Frozen, collections walk only what the run itself makes. Not if someone froze first.
+        freeze = gc.get_freeze_count() == 0
+        if freeze:
+            gc.freeze()
         try:
             # Inside the try: a fault on the way back stops the run safely like any other.
             if len(done) < len(self.plan.points):
@@ -265,6 +279,8 @@ class Runner:
             self._stop(f"error: {type(exc).__name__}: {exc}")
             raise
         finally:
+            if freeze:
+                gc.unfreeze()
             bar.close()
             self._shutdown()
         return RunSummary(self._measured, len(done), self._references, self._drift, str(table),
