@@ -160,6 +160,23 @@ class _NotJson(Exception):
 
 def _plain_json(value: Any) -> Any:
     """``jsonable`` without building the key path of every value: a journal record has hundreds of them."""
+    # The exact plain types first (nearly every value of a record), then the general walk below.
+    kind = type(value)
+    if kind is float:
+        if not math.isfinite(value):
+            raise _NotJson
+        return value
+    if kind is str or kind is int or kind is bool or value is None:
+        return value
+    if kind is list or kind is tuple:
+        return [_plain_json(v) for v in value]
+    if kind is dict:
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise _NotJson
+            out[k] = _plain_json(v)
+        return out
     if isinstance(value, np.ndarray | np.generic):
         value = value.tolist()
     if value is None or isinstance(value, bool | int | str):
