@@ -107,6 +107,11 @@ def _crop(a: npt.NDArray[Any], roi: Box | None) -> npt.NDArray[Any]:
 
 
 def _shoot(camera: Camera, exposure_s: float) -> Frame:
+    # A BoundedCamera (the runner's) makes the same two calls in one hand-off to its worker thread.
+    exposed = getattr(camera, "exposed_frames", None)
+    if exposed is not None:
+        frame: Frame = exposed(exposure_s)[1][0]
+        return frame
     camera.set_exposure(exposure_s)
     return camera.capture()
 
@@ -115,11 +120,17 @@ def _darks(camera: Camera, exposures: tuple[float, ...], n: int) -> tuple[dict[f
     take_dark = getattr(camera, "capture_dark", None)
     if n == 0 or take_dark is None:
         return {}, ()
+    exposed = getattr(camera, "exposed_frames", None)
     darks: dict[float, list[Frame]] = {}
     taken: list[float] = []
     for t in sorted(set(exposures)):
-        applied = camera.set_exposure(t).exposure_s
-        darks[applied] = [take_dark() for _ in range(n)]
+        if exposed is not None:
+            settings, frames = exposed(t, n, dark=True)
+            applied = settings.exposure_s
+        else:
+            applied = camera.set_exposure(t).exposure_s
+            frames = [take_dark() for _ in range(n)]
+        darks[applied] = frames
         taken += [applied] * n
     return darks, tuple(taken)
 
