@@ -181,6 +181,15 @@ def _select(image: npt.NDArray[np.generic], roi: Box | BoolArray, name: str, che
     return np.asarray(pixels, dtype=np.float64).reshape(pixels.shape[0], -1)
 
 
+def _flags(flags: npt.NDArray[np.generic], roi: Box | BoolArray, checked: bool, name: str = "flags") -> BoolArray:
+    """Which ROI pixels of a flag array are set, as (N, C) booleans (``_select(flags != 0) != 0``, cut first)."""
+    if isinstance(roi, np.ndarray) or not checked:
+        return _select(flags != 0, roi, name, checked) != 0
+    x0, y0, x1, y1 = roi
+    cut = flags[y0:y1, x0:x1] != 0
+    return cut.reshape(cut.shape[0] * cut.shape[1], -1)
+
+
 def reduce_roi(
     radiance: npt.ArrayLike,
     variance: npt.ArrayLike,
@@ -220,7 +229,7 @@ def reduce_roi(
             raise RoiError(
                 f"flags have shape {fl.shape} but radiance has shape {rad.shape}: expected (H, W) or the same shape"
             )
-        sel = _select(fl != 0, roi, "flags", box) != 0
+        sel = _flags(fl, roi, box)
         flagged = np.broadcast_to(sel, x.shape) if sel.shape[1] == 1 else sel
     n_flagged = flagged.sum(axis=0)
     n_dark = np.zeros(n_ch, dtype=np.int64)
@@ -228,7 +237,7 @@ def reduce_roi(
         dk = np.asarray(dark)
         if dk.shape not in (rad.shape[:2], rad.shape):
             raise RoiError(f"dark has shape {dk.shape} but radiance has shape {rad.shape}: expected (H, W) or the same")
-        sel_dark = _select(dk != 0, roi, "dark", box) != 0
+        sel_dark = _flags(dk, roi, box, "dark")
         n_dark = np.broadcast_to(sel_dark, x.shape).sum(axis=0) if sel_dark.shape[1] == 1 else sel_dark.sum(axis=0)
     if on_flagged == "raise" and n_flagged.any():
         raise RoiError(f"{int(n_flagged.max())} of {n_pixels} ROI pixels are flagged (on_flagged='raise')")

@@ -54,7 +54,7 @@ from acquisition.exposure.snr import (
     exposure_for_snr,
     pixel_snr,
     roi_snr,
-    single_exposure_snr,
+    single_exposure_min_snr,
 )
 from acquisition.exposure.spec import CameraTiming, ExposureError, ExposurePlan, RoiLevel, _finite
 from acquisition.noise import SensorNoise
@@ -109,24 +109,23 @@ def plan_exposure(
     dr = _dark_rate(noise, gain)
 
     # One exposure repeated (every step of the search for the shortest frame) has a faster, same-bits form.
-    one_kind = [single_exposure_snr(lv, noise, gain, dark_frames) for lv in levels]
+    one_kind = single_exposure_min_snr(levels, noise, gain, dark_frames)
 
     def snr_of(frames: Frames) -> float:
         if len(frames) == 1:
             ((t, n),) = frames.items()
-            return min(f(t, n) for f in one_kind)
+            return one_kind(t, n)
         ts = [t for t, n in frames.items() for _ in range(n)]
         return min(roi_snr(lv, noise, ts, gain, dark_frames) for lv in levels)
 
-    order = sorted(range(len(levels)), key=lambda i: levels[i].mean_dn_per_s)
-    dimmest_first = [levels[i] for i in order]
-    one_kind_dimmest_first = [one_kind[i] for i in order]
+    dimmest_first = sorted(levels, key=lambda lv: lv.mean_dn_per_s)
+    one_kind_short = single_exposure_min_snr(dimmest_first, noise, gain, dark_frames, stop_below=target)
 
     def reaches(frames: Frames) -> bool:
         # snr_of(frames) >= target, stopping at the first channel short of it (the dimmest, mostly).
         if len(frames) == 1:
             ((t, n),) = frames.items()
-            return all(f(t, n) >= target for f in one_kind_dimmest_first)
+            return one_kind_short(t, n) >= target
         ts = [t for t, n in frames.items() for _ in range(n)]
         return all(roi_snr(lv, noise, ts, gain, dark_frames) >= target for lv in dimmest_first)
 

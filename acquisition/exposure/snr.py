@@ -148,6 +148,64 @@ def single_exposure_snr(
     return snr
 
 
+def single_exposure_min_snr(
+    levels: Sequence[RoiLevel],
+    noise: SensorNoise,
+    gain: float = 1.0,
+    dark_frames: int = 0,
+    stop_below: float = -math.inf,
+) -> Callable[[float, int], float]:
+    """``min(single_exposure_snr(lv, ...)(t, n) for lv in levels)``, the same bits; the first below ``stop_below``.
+
+    The levels share everything but their rates, so the terms that depend only on t and n are worked out once
+    a call (with the operations grouped as ``_mean_level_snr`` groups them); the planner's reaches-the-target
+    test passes the target as ``stop_below``, since any channel short of it decides.
+    """
+    if any(lv.rates_dn_per_s or lv.mean_dn_per_s == 0 for lv in levels):
+        each = [single_exposure_snr(lv, noise, gain, dark_frames) for lv in levels]
+
+        def some(t: float, n: int) -> float:
+            low = math.inf
+            for f in each:
+                low = min(low, f(t, n))
+                if low < stop_below:
+                    break
+            return low
+
+        return some
+    sat = noise.saturation_dn(gain)
+    dr = _dark_rate(noise, gain)
+    g = noise.e_per_dn / gain
+    g2 = g**2
+    read = noise.read_noise_e**2
+    dc = noise.dark_current_e_per_s
+    zero_g = 0.0 / g
+    params = [(lv.peak_dn_per_s * gain + dr, lv.mean_dn_per_s * gain, lv.mean_dn_per_s, lv.n_pixels) for lv in levels]
+
+    def snr(t: float, n: int) -> float:
+        t = float(t)
+        dark_e = dc * t
+        b = (read + dark_e) / g2
+        master = n * n * (zero_g + b + 1.0 / 12.0) / dark_frames if dark_frames else 0.0
+        total_t = 0.0 + n * t
+        gt = gain * total_t
+        low = math.inf
+        for peak_rate, rg, mean, n_px in params:
+            if peak_rate * t > sat or (rg + dr) * t > sat or total_t <= 0:
+                value = 0.0  # no frame the peak (or the mean) leaves unclipped
+            else:
+                var = n * (max(rg * t, 0.0) / g + b + 1.0 / 12.0)
+                if dark_frames:
+                    var = var + master
+                value = mean / math.sqrt((0.0 + var) / (gt * gt) / n_px)
+            low = min(low, value)
+            if low < stop_below:
+                break
+        return low
+
+    return snr
+
+
 def exposure_for_snr(
     level: RoiLevel, noise: SensorNoise, target_snr: float, n: int, gain: float = 1.0, dark_frames: int = 0
 ) -> float | None:

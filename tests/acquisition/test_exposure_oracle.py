@@ -22,6 +22,7 @@ from acquisition.exposure.snr import (
     _merged_variance,
     exposure_for_snr,
     roi_snr,
+    single_exposure_min_snr,
     single_exposure_snr,
 )
 from acquisition.exposure.spec import CameraTiming, ExposureError, ExposurePlan, RoiLevel
@@ -67,12 +68,18 @@ def oracle_shortest(ok: Callable[[float], bool], cam: CameraTiming, t_hi: float,
     return t if t is not None and t <= t_hi and ok(t) else t_hi
 
 
+def oracle_min_snr(
+    levels: Sequence[RoiLevel], noise: SensorNoise, gain: float = 1.0, dark_frames: int = 0, stop_below: float = 0.0
+) -> Callable[[float, int], float]:
+    """The lowest channel's SNR of one exposure repeated, through the original roi_snr."""
+    return lambda t, n: min(oracle_roi_snr(lv, noise, [t] * n, gain, dark_frames) for lv in levels)
+
+
 def oracle_plan(monkeypatch: pytest.MonkeyPatch, *args: object, **kwargs: object) -> ExposurePlan:
     with monkeypatch.context() as m:
         m.setattr(plan_module, "_shortest", oracle_shortest)
         m.setattr(plan_module, "roi_snr", oracle_roi_snr)
-        m.setattr(plan_module, "single_exposure_snr",
-                  lambda lv, noise, gain=1.0, darks=0: lambda t, n: oracle_roi_snr(lv, noise, [t] * n, gain, darks))
+        m.setattr(plan_module, "single_exposure_min_snr", oracle_min_snr)
         return plan_exposure(*args, **kwargs)  # type: ignore[arg-type]
 
 
@@ -165,3 +172,23 @@ def test_single_exposure_snr_matches_roi_snr_bit_for_bit() -> None:
             assert snr(float(t), n) == oracle_roi_snr(level, noise, [float(t)] * n, gain, darks)
     spread = RoiLevel(100.0, 55.0, 4, 10.0, (10.0, 50.0, 100.0), (0.25, 0.5, 0.25))
     assert single_exposure_snr(spread, NOISES[0])(0.5, 3) == roi_snr(spread, NOISES[0], [0.5] * 3)
+
+
+def test_single_exposure_min_snr_matches_roi_snr_bit_for_bit() -> None:
+    rng = np.random.default_rng(12)
+    for noise, _ in itertools.product(NOISES, range(150)):
+        peak = float(10 ** rng.uniform(0, 7))
+        levels = [RoiLevel(peak, peak * float(rng.choice([rng.uniform(0.01, 1), 1.0])), int(rng.integers(1, 500)))
+                  for _ in range(int(rng.integers(1, 4)))]  # fmt: skip
+        gain, darks = float(rng.choice([1.0, 2.5, 4.0])), int(rng.integers(0, 3))
+        lowest = single_exposure_min_snr(levels, noise, gain, darks)
+        for t in 10 ** rng.uniform(-6, 1, size=6):
+            n = int(rng.integers(1, 8))
+            want = min(oracle_roi_snr(lv, noise, [float(t)] * n, gain, darks) for lv in levels)
+            assert lowest(float(t), n) == want
+            target = float(rng.uniform(0, 2 * want)) if want > 0 else 1.0
+            short = single_exposure_min_snr(levels, noise, gain, darks, stop_below=target)
+            assert (short(float(t), n) >= target) == (want >= target)
+    dark = [RoiLevel(5.0, 0.0, 4), RoiLevel(100.0, 55.0, 4, 10.0, (10.0, 50.0, 100.0), (0.25, 0.5, 0.25))]
+    assert single_exposure_min_snr(dark, NOISES[0])(0.5, 3) == 0.0
+    assert single_exposure_min_snr(dark[1:], NOISES[0])(0.5, 3) == roi_snr(dark[1], NOISES[0], [0.5] * 3)

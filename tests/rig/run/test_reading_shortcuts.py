@@ -244,3 +244,14 @@ def test_level_of_equals_the_reference(kind: str) -> None:
         for box in (None, (0, 0, w, h), (0, 0, max(1, w // 2), max(1, h // 2))):
             got, want = level_of(hdr, box), reference_level_of(hdr, box)
             assert repr(got) == repr(want)  # repr: NaN equals NaN, -0.0 differs from 0.0
+
+
+def test_the_hdr_reading_masks_are_the_images_own() -> None:
+    from acquisition import cfa
+
+    rng = np.random.default_rng(2)
+    flags = rng.integers(0, 8, (6, 7, 3)).astype(np.uint8)
+    hdr = HdrImage(np.ones(flags.shape, np.float32), np.ones(flags.shape, np.float32), flags,
+                   np.ones(flags.shape, np.uint8), (0.01,), {"kind": "linear"})  # fmt: skip
+    assert np.array_equal((hdr.flags & cfa._SATURATED_BITS) != 0, hdr.saturated)
+    assert np.array_equal((hdr.flags & cfa._DARK_BITS) != 0, hdr.dark)
