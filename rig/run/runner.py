@@ -454,7 +454,7 @@ class Runner:
 
     def _finish(self) -> str:
         ref = self.reference
-        records = self.store.records()
+        records = self.store.records_to_read()  # check_records and build_rows only read them
         check_records(records, self.store.path / JOURNAL)
         rows = build_rows(records, self.geometry.joint_names,
                           albedo=ref.albedo if ref else None, albedo_std_error=ref.albedo_std_error if ref else 0.0,

@@ -43,3 +43,14 @@ def test_the_fast_walk_equals_the_naming_walk() -> None:
 def test_refusals_still_name_the_value(bad: Any) -> None:
     with pytest.raises(ValueError, match=r"record\[.x.\]"):
         jsonable({"x": bad}, "record")
+
+
+def test_records_to_read_are_the_records(tmp_path: Any) -> None:
+    from rig.run.store import RunStore
+
+    store = RunStore.create(tmp_path / "run", {"what": "test"})
+    store.append({"kind": "point", "index": 1, "values": [1.0, np.float64(2.5)]})
+    store.append({"kind": "event", "message": "x"})
+    assert list(store.records_to_read()) == store.records()
+    assert RunStore.read(tmp_path / "run").records_to_read() == tuple(store.records())
+    store.close()
