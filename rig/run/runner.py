@@ -169,6 +169,7 @@ class Runner:
         self.guard = MotionGuard(plan.paths, allowed)
         #: Time to go, in wall seconds (the progress bar's), without the first point's one-time costs.
         self.eta = Eta(wall_clock)
+        self._guard_names: frozenset[str] | None = None
         #: Wall seconds the kernel warm-up took before the first point (0 if nothing was left to measure).
         self.warm_up_s = 0.0
         self._wall = wall_clock
@@ -301,21 +302,25 @@ class Runner:
     # -- motion ---------------------------------------------------------------------------------------
     def _move(self, joints: Joints, via: tuple[Joints, ...] = ()) -> Joints:
         held: dict[str, float] = {}
+        driven = self.guard_names
         for stop in (*via, joints):
-            target = {k: float(v) for k, v in stop.as_dict().items() if k in self.guard_names}
+            target = {k: float(v) for k, v in stop.as_dict().items() if k in driven}
             # Every leg is checked from where the arms are now (the guard), never assumed from the plan.
             for leg in self.guard.legs(self.link, target):
                 held = self._leg(leg)
         if self.options.settle_s > 0:
             self.clock.sleep(self.options.settle_s)
-        names = set(Joints.__dataclass_fields__)
+        names = Joints.__dataclass_fields__
         return Joints.from_dict({**{k: float(v) for k, v in joints.as_dict().items()},
                                  **{k: v for k, v in held.items() if k in names}})  # fmt: skip
 
     @property
-    def guard_names(self) -> set[str]:
+    def guard_names(self) -> frozenset[str]:
         """Joints the link drives (the others have no axis and stay where the plan holds them)."""
-        return set(self.plan.paths.names) if self.plan.paths is not None else set(Joints.__dataclass_fields__)
+        if self._guard_names is None:  # the plan does not change: worked out once, not for every joint of a move
+            paths = self.plan.paths
+            self._guard_names = frozenset(paths.names if paths is not None else Joints.__dataclass_fields__)
+        return self._guard_names
 
     def _leg(self, target: dict[str, float]) -> dict[str, float]:
         """One move to ``target`` (deg), re-issued once after a timeout; the joints read back."""

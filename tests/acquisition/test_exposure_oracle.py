@@ -192,3 +192,16 @@ def test_single_exposure_min_snr_matches_roi_snr_bit_for_bit() -> None:
     dark = [RoiLevel(5.0, 0.0, 4), RoiLevel(100.0, 55.0, 4, 10.0, (10.0, 50.0, 100.0), (0.25, 0.5, 0.25))]
     assert single_exposure_min_snr(dark, NOISES[0])(0.5, 3) == 0.0
     assert single_exposure_min_snr(dark[1:], NOISES[0])(0.5, 3) == roi_snr(dark[1], NOISES[0], [0.5] * 3)
+
+
+def test_geomspace_shortcut_equals_numpy() -> None:
+    from acquisition.exposure.snr import _geomspace
+
+    rng = np.random.default_rng(8)
+    for _ in range(3000):
+        lo = float(10 ** rng.uniform(-9, 7))
+        hi = lo * float(10 ** rng.uniform(0, 9)) if rng.random() < 0.95 else lo
+        num = int(rng.choice([2, 3, 48, 49]))
+        assert _geomspace(lo, hi, num) == np.geomspace(lo, hi, num).tolist(), (lo, hi, num)
+    assert _geomspace(5.0, 5.0, 48) == np.geomspace(5.0, 5.0, 48).tolist()
+    assert _geomspace(1e-300, 1e300, 48) == np.geomspace(1e-300, 1e300, 48).tolist()
