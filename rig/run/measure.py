@@ -205,6 +205,12 @@ def snr_reached(reading: RoiReading) -> float:
     """
     mean = np.atleast_1d(np.asarray(reading.mean, dtype=np.float64))
     se = np.atleast_1d(np.asarray(reading.std_error_propagated, dtype=np.float64))
+    if mean.shape == se.shape:  # in Python numbers, 1-3 channels: the same quotients, without numpy's calls
+        ratios = [abs(m) / e for m, e in zip(mean.tolist(), se.tolist(), strict=True) if e > 0]
+        if not ratios:
+            return float("inf")
+        if all(r == r for r in ratios):  # numpy's min is NaN if one is, Python's depends on the order
+            return min(ratios)
     ok = se > 0
     return float(np.min(np.abs(mean[ok]) / se[ok])) if np.any(ok) else float("inf")
 

@@ -26,7 +26,7 @@ from acquisition.roi import (
     _per_channel_count,
     reduce_roi,
 )
-from rig.run.measure import Level, level_of
+from rig.run.measure import Level, level_of, snr_reached
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -255,3 +255,43 @@ def test_the_hdr_reading_masks_are_the_images_own() -> None:
                    np.ones(flags.shape, np.uint8), (0.01,), {"kind": "linear"})  # fmt: skip
     assert np.array_equal((hdr.flags & cfa._SATURATED_BITS) != 0, hdr.saturated)
     assert np.array_equal((hdr.flags & cfa._DARK_BITS) != 0, hdr.dark)
+
+
+def reference_dark(r: RoiReading) -> bool:
+    """``RoiReading.dark`` as it was, in numpy."""
+    n_dark, used = np.atleast_1d(r.n_dark), np.atleast_1d(r.n_used)
+    mean, se = np.atleast_1d(r.mean), np.atleast_1d(r.std_error)
+    with np.errstate(invalid="ignore"):
+        undetected = ~(mean > 3.0 * se)
+    return bool(np.any(2 * n_dark > used) or np.any(undetected))
+
+
+def reference_snr_reached(reading: RoiReading) -> float:
+    """``rig.run.measure.snr_reached`` as it was, in numpy."""
+    mean = np.atleast_1d(np.asarray(reading.mean, dtype=np.float64))
+    se = np.atleast_1d(np.asarray(reading.std_error_propagated, dtype=np.float64))
+    ok = se > 0
+    return float(np.min(np.abs(mean[ok]) / se[ok])) if np.any(ok) else float("inf")
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered")  # inf / inf, in numpy both ways
+def test_dark_reading_and_snr_reached_equal_the_reference() -> None:
+    rng = np.random.default_rng(31)
+    specials = [0.0, -0.0, np.nan, np.inf, -np.inf, 1e-300]
+    for _ in range(3000):
+        c = int(rng.integers(1, 4))
+        mean = rng.normal(0, 10, c)
+        se = np.abs(rng.normal(0, 5, c))
+        for arr in (mean, se):
+            hit = rng.random(c) < 0.2
+            arr[hit] = rng.choice(specials, int(hit.sum()))
+        used = rng.integers(0, 20, c)
+        n_dark = rng.integers(0, 20, c)
+        one = (mean[0], se[0], used[0], n_dark[0]) if c == 1 else (mean, se, used[0], n_dark)
+        shapes = [(mean, se, used, n_dark), one]
+        for m, s, u, d in shapes:
+            r = RoiReading(np.asarray(m), np.asarray(s), np.asarray(s), np.asarray(s), 20, np.asarray(u),
+                           np.zeros_like(np.asarray(u)), False, "max", np.asarray(d))  # fmt: skip
+            assert r.dark == reference_dark(r)
+            assert type(r.dark) is bool
+            assert repr(snr_reached(r)) == repr(reference_snr_reached(r))
