@@ -182,7 +182,8 @@ def plan_exposure(
 
     exposures = tuple(sorted(t for t, k in frames.items() for _ in range(k)))
     # The evaluation's own pixel SNR and verdict are replaced below, so it need not work them out.
-    plan = _evaluate(levels, noise, exposures, cam, target, pixel_snr_target, dark_frames, pixel=False)
+    known = snr_of(frames) if len(frames) == 1 else None  # the one-kind closure's bits are roi_snr's
+    plan = _evaluate(levels, noise, exposures, cam, target, pixel_snr_target, dark_frames, pixel=False, snr=known)
     clip_peak = any((lv.peak_dn_per_s * gain + dr) * t > sat for lv in levels for t in frames)
     if clip_peak and not all(lv.rates_dn_per_s for lv in levels):
         notes.append("expected_snr is a lower bound: no pixel distribution given, frames clipping the peak not counted")
@@ -332,8 +333,12 @@ def evaluate_plan(
 def _evaluate(
     levels: Sequence[RoiLevel], noise: SensorNoise, exposures_s: Sequence[float], cam: CameraTiming,
     target_snr: float, pixel_snr_target: float | None, dark_frames: int, *, pixel: bool = True,
+    snr: float | None = None,
 ) -> ExposurePlan:
-    """``evaluate_plan``; without ``pixel`` the per-pixel SNR is left out (None) and ``reached`` ignores it."""
+    """``evaluate_plan``; without ``pixel`` the per-pixel SNR is left out (None) and ``reached`` ignores it.
+
+    ``snr`` is the ROI SNR of these exposures where the caller knows it already (the planner, for one kind).
+    """
     if not exposures_s or not all(math.isfinite(t) and t > 0 for t in exposures_s):
         raise ValueError(f"evaluate_plan: exposures_s = {tuple(exposures_s)!r}: expected positive seconds")
     gain = cam.gain
@@ -341,7 +346,8 @@ def _evaluate(
     dr = _dark_rate(noise, gain)
     exposures = tuple(sorted(float(t) for t in exposures_s))
     frames = _frames(exposures)
-    snr = min(roi_snr(lv, noise, exposures, gain, dark_frames) for lv in levels)
+    if snr is None:
+        snr = min(roi_snr(lv, noise, exposures, gain, dark_frames) for lv in levels)
     peak = max(lv.peak_dn_per_s for lv in levels)
     margin = sat / ((peak * gain + dr) * exposures[0]) if peak * gain + dr > 0 else math.inf
     notes: list[str] = []
