@@ -13,6 +13,7 @@ kept, with ``RoiReading.dark`` set and a note, so the table can say so.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -158,7 +159,26 @@ def level_of(hdr: HdrImage, roi: Box | None) -> Level:
             with np.errstate(invalid="ignore"):
                 per = np.nanmean(np.where(ok, rad, np.nan).reshape(-1, rad.shape[-1]), axis=0)
         means = tuple(float(m) if np.isfinite(m) else float(finite.mean()) for m in per)
-    return Level(float(finite.max()), float(finite.mean()), float(max(np.percentile(finite, 1.0), 0.0)), n, means)
+    return Level(float(finite.max()), float(finite.mean()), float(max(_percentile(finite, 1.0), 0.0)), n, means)
+
+
+def _percentile(values: npt.NDArray[np.float64], q: float) -> float:
+    """``np.percentile(values, q)`` (linear method) of a 1-D array of finite values, by numpy's own arithmetic.
+
+    numpy's general quantile machinery cost ~35 us a reading for a 16-pixel ROI; this is what it comes down
+    to there: the virtual index (n - 1) q / 100, the two order statistics around it (partitioned at numpy's
+    points), numpy's lerp.
+    """
+    n = values.size
+    vi = (n - 1) * (q / 100)
+    if not 0 <= vi < n - 1:  # the ends (and one value): numpy takes the last, or the first, order statistic
+        return float(np.percentile(values, q))
+    k = math.floor(vi)
+    # numpy's partition points, so that equal values (0.0 and -0.0) land where numpy's land
+    lo, hi = np.partition(values, sorted({0, -1, k, k + 1}))[k : k + 2].tolist()
+    t = vi - k
+    diff = hi - lo
+    return hi - diff * (1 - t) if t >= 0.5 else lo + diff * t
 
 
 def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | None) -> Reading:

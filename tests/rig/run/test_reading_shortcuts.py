@@ -295,3 +295,19 @@ def test_dark_reading_and_snr_reached_equal_the_reference() -> None:
             assert r.dark == reference_dark(r)
             assert type(r.dark) is bool
             assert repr(snr_reached(r)) == repr(reference_snr_reached(r))
+
+
+def test_percentile_equals_numpys() -> None:
+    from rig.run.measure import _percentile
+
+    rng = np.random.default_rng(41)
+    for _ in range(4000):
+        n = int(rng.choice([1, 2, 3, 4, 16, 48, 99, 100, 101, 144, 432, 1000]))
+        values = rng.normal(0, 1, n) * float(10 ** rng.uniform(-5, 5))
+        if rng.random() < 0.3:
+            values = np.round(values, 1)  # ties
+        if rng.random() < 0.3:  # signed zeros: which one numpy picks depends on where its partition puts them
+            hit = rng.random(n) < 0.5
+            values[hit] = rng.choice([0.0, -0.0], int(hit.sum()))
+        q = float(rng.choice([1.0, 0.5, 50.0, 99.0, 0.0, 100.0, float(rng.uniform(0, 100))]))
+        assert repr(_percentile(values, q)) == repr(float(np.percentile(values, q))), (n, q)
