@@ -293,6 +293,16 @@ def _shortest(ok: Callable[[float], bool], cam: CameraTiming, t_hi: float, guess
             a0, b0 = math.log(guess * (1 - rel)), math.log(guess * (1 + rel))
             if a < a0 and b0 < b and not ok(math.exp(a0)) and ok(math.exp(b0)):
                 a, b = a0, b0
+                # The boundary is a float or two from the estimate's: walk to it (keeping ok(e^a) false and
+                # ok(e^b) true), and the halvings below have nothing left to halve.
+                x = math.log(guess)
+                for _ in range(8):
+                    if not a < x < b:
+                        break
+                    if ok(math.exp(x)):
+                        b, x = x, math.nextafter(x, -math.inf)
+                    else:
+                        a, x = x, math.nextafter(x, math.inf)
                 break
     # Halve until the midpoint rounds onto an end (about 55 halvings of a 1e-5..30 s range): from there on
     # a halving changes nothing, except that a start `a` which passes moves `b` onto it. So this is the
