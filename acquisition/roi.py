@@ -311,8 +311,11 @@ def _all_used(
     mean = x.sum(axis=0) / n_used
     prop = np.sqrt(v.sum(axis=0)) / n_used
     dev2 = ((x - mean) ** 2).sum(axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    if x.shape[0] > 1:  # every channel uses every pixel: nothing divides by zero, no warning to silence
         spatial = np.where(n_used > 1, np.sqrt(dev2 / (n_used - 1) / n_used), np.nan)
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            spatial = np.where(n_used > 1, np.sqrt(dev2 / (n_used - 1) / n_used), np.nan)
     se = prop if error_model == "propagated" else spatial if error_model == "spatial" else np.fmax(prop, spatial)
     return RoiReading(
         mean=_per_channel(mean, one),

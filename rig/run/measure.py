@@ -158,7 +158,7 @@ def level_of(hdr: HdrImage, roi: Box | None) -> Level:
         else:
             with np.errstate(invalid="ignore"):
                 per = np.nanmean(np.where(ok, rad, np.nan).reshape(-1, rad.shape[-1]), axis=0)
-        means = tuple(float(m) if np.isfinite(m) else float(finite.mean()) for m in per)
+        means = tuple(m if math.isfinite(m) else float(finite.mean()) for m in per.tolist())
     return Level(float(finite.max()), float(finite.mean()), float(max(_percentile(finite, 1.0), 0.0)), n, means)
 
 
