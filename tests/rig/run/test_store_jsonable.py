@@ -54,3 +54,38 @@ def test_records_to_read_are_the_records(tmp_path: Any) -> None:
     assert list(store.records_to_read()) == store.records()
     assert RunStore.read(tmp_path / "run").records_to_read() == tuple(store.records())
     store.close()
+
+
+def reference_csv_text(rows: list[dict[str, Any]], columns: list[str] | None = None) -> str:
+    """``csv_text`` before its fast paths (key order and cells as then)."""
+    import csv
+    import io
+
+    from rig.run.store_formats import _cell
+
+    cols = list(dict.fromkeys(k for row in rows for k in row) if columns is None else columns)
+    buf = io.StringIO()
+    out = csv.writer(buf, lineterminator="\n")
+    out.writerow(cols)
+    for i, row in enumerate(rows):
+        out.writerow([_cell(i, c, row.get(c)) for c in cols])
+    return buf.getvalue()
+
+
+def test_csv_text_equals_the_reference() -> None:
+    from rig.run.store_formats import csv_text
+
+    rng = np.random.default_rng(6)
+    pool: list[Any] = [0.1, -0.0, 1e300, 5e-324, 3, True, False, None, "a,b", np.float64(2.5), np.float32(0.1),
+                       np.int64(-4), np.bool_(True), Fancy(1.5), Colour.RED, float(rng.normal())]  # fmt: skip
+    for _ in range(200):
+        keys = [f"k{j}" for j in rng.permutation(8)[: int(rng.integers(1, 8))]]
+        rows = [{k: pool[int(rng.integers(len(pool)))] for k in keys if rng.random() < 0.8} for _ in range(5)]
+        assert csv_text(rows) == reference_csv_text(rows)
+        assert csv_text(rows, ["k3", "k1", "k0"] + [k for k in keys if k not in ("k3", "k1", "k0")]) == (
+            reference_csv_text(rows, ["k3", "k1", "k0"] + [k for k in keys if k not in ("k3", "k1", "k0")])
+        )
+    with pytest.raises(ValueError, match="not among the columns"):
+        csv_text([{"a": 1.0, "b": 2.0}], ["a"])
+    with pytest.raises(ValueError, match="expected a finite number"):
+        csv_text([{"a": math.nan}])
