@@ -181,9 +181,12 @@ def single_exposure_min_snr(
     dc = noise.dark_current_e_per_s
     zero_g = 0.0 / g
     params = [(lv.peak_dn_per_s * gain + dr, lv.mean_dn_per_s * gain, lv.mean_dn_per_s, lv.n_pixels) for lv in levels]
+    known: dict[tuple[float, int], float] = {}  # a plan asks for the same frames 3 times in 11
 
     def snr(t: float, n: int) -> float:
         t = float(t)
+        if (t, n) in known:
+            return known[t, n]
         dark_e = dc * t
         b = (read + dark_e) / g2
         master = n * n * (zero_g + b + 1.0 / 12.0) / dark_frames if dark_frames else 0.0
@@ -201,6 +204,7 @@ def single_exposure_min_snr(
             low = min(low, value)
             if low < stop_below:
                 break
+        known[t, n] = low
         return low
 
     return snr
