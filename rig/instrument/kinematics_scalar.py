@@ -2,9 +2,9 @@
 
 The runner turns every read-back into directions once a point; numpy's per-call overhead on 3-vectors made
 that ~70 us. The operations here are numpy's, in numpy's order: products and sums as ``_sample_axes`` and
-``_to_local`` do them (numpy's sum of three starts from +0.0 and adds left to right), sin and cos from
-``math`` (the same values as numpy's on every input tested), and ``np.arctan2``/``np.hypot`` kept from numpy
-since its SIMD versions differ from ``math``'s in the last bit on some machines.
+``_to_local`` do them (numpy's sum of three starts from +0.0 and adds left to right), degrees and radians
+as the one multiplication both libraries make, and sin, cos, arctan2 and hypot from numpy on a float (its
+SIMD versions may differ from ``math``'s in the last bit: arctan2 and hypot do on an AVX-512 host).
 tests/rig/instrument/test_kinematics_scalar.py compares them with the numpy path on random and special poses.
 """
 
@@ -18,6 +18,14 @@ from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics_types import Directions, Joints
 
 Vec = tuple[float, float, float]
+
+
+def _cos(x: float) -> float:
+    return float(np.cos(x))
+
+
+def _sin(x: float) -> float:
+    return float(np.sin(x))
 
 
 def _dot(d: Vec, a: Vec) -> float:
@@ -51,16 +59,16 @@ def forward_one(geometry: RigGeometry, joints: Joints) -> Directions | None:
     else:
         tilt, roll, yaw = math.radians(values["tilt"]), math.radians(values["roll"]), 0.0
         camera = math.radians(values["camera"])
-    ct, st = math.cos(tilt), math.sin(tilt)
-    cr, sr = math.cos(roll), math.sin(roll)
-    cy, sy = math.cos(yaw), math.sin(yaw)
+    ct, st = _cos(tilt), _sin(tilt)
+    cr, sr = _cos(roll), _sin(roll)
+    cy, sy = _cos(yaw), _sin(yaw)
     zero = 0.0
     axes = []
     for vx, vy, vz in ((-sr * st, cr + zero, sr * ct), (-cr * st, -sr + zero, cr * ct), (ct + zero, zero, st + zero)):
         axes.append((cy * vx - sy * vy, sy * vx + cy * vy, vz + zero))
     x, y, z = axes
-    d_light = (math.cos(light), math.sin(light), 0.0)
-    d_camera = (math.cos(camera), math.sin(camera), 0.0)
+    d_light = (_cos(light), _sin(light), 0.0)
+    d_camera = (_cos(camera), _sin(camera), 0.0)
     wi = (_dot(d_light, x), _dot(d_light, y), _dot(d_light, z))
     wo = (_dot(d_camera, x), _dot(d_camera, y), _dot(d_camera, z))
     theta_i, phi_i = _angles(wi)
