@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from acquisition.frame import Frame
-from acquisition.hdr.merge import HdrImage
+from acquisition.hdr.merge import HdrFlag, HdrImage
 from acquisition.roi import Box, ErrorModel, FlaggedPolicy, RoiError, RoiReading, reduce_roi, validate_box
 
 FloatArray = npt.NDArray[np.float64]
@@ -140,6 +140,12 @@ def counts_above_black(frame: Frame, roi: Box | None = None) -> FloatArray:
     return above[y0:y1, x0:x1]
 
 
+#: ``HdrImage.saturated`` and ``HdrImage.dark`` are these bits of ``flags``; as plain ints the masks cost a third
+#: (an IntFlag operand sends numpy through the enum's attribute lookups). The ROI only asks which are non-zero.
+_SATURATED_BITS = int(HdrFlag.SATURATED)
+_DARK_BITS = int(HdrFlag.DARK | HdrFlag.BELOW_BLACK)
+
+
 def reduce_hdr_roi(hdr: HdrImage, roi: Box, *, on_flagged: FlaggedPolicy = "exclude") -> RoiReading:
     """An HDR image's ROI reading: per colour over whole 2x2 cells for a raw mosaic, per channel otherwise.
 
@@ -147,10 +153,11 @@ def reduce_hdr_roi(hdr: HdrImage, roi: Box, *, on_flagged: FlaggedPolicy = "excl
     the merge's (counts/s).
     """
     pattern = hdr.metadata.get("cfa_pattern")
+    saturated, dark = (hdr.flags & _SATURATED_BITS) != 0, (hdr.flags & _DARK_BITS) != 0
     if hdr.metadata.get("kind") == "raw" and isinstance(pattern, str):
-        return reduce_mosaic_roi(hdr.radiance, hdr.variance, roi, pattern, flags=hdr.saturated, on_flagged=on_flagged,
-                                 dark=hdr.dark)  # fmt: skip
-    return reduce_roi(hdr.radiance, hdr.variance, roi, flags=hdr.saturated, on_flagged=on_flagged, dark=hdr.dark)
+        return reduce_mosaic_roi(hdr.radiance, hdr.variance, roi, pattern, flags=saturated, on_flagged=on_flagged,
+                                 dark=dark)  # fmt: skip
+    return reduce_roi(hdr.radiance, hdr.variance, roi, flags=saturated, on_flagged=on_flagged, dark=dark)
 
 
 def colour_planes(hdr: HdrImage, roi: Box) -> FloatArray:

@@ -46,7 +46,16 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from acquisition.exposure.bracket import _cost, _greedy_pixel, _prune
-from acquisition.exposure.snr import Frames, _dark_rate, _frames, _pixel_grid, exposure_for_snr, pixel_snr, roi_snr
+from acquisition.exposure.snr import (
+    Frames,
+    _dark_rate,
+    _frames,
+    _pixel_grid,
+    exposure_for_snr,
+    pixel_snr,
+    roi_snr,
+    single_exposure_min_snr,
+)
 from acquisition.exposure.spec import CameraTiming, ExposureError, ExposurePlan, RoiLevel, _finite
 from acquisition.noise import SensorNoise
 
@@ -99,14 +108,24 @@ def plan_exposure(
     sat = noise.saturation_dn(gain)
     dr = _dark_rate(noise, gain)
 
+    # One exposure repeated (every step of the search for the shortest frame) has a faster, same-bits form.
+    one_kind = single_exposure_min_snr(levels, noise, gain, dark_frames)
+
     def snr_of(frames: Frames) -> float:
+        if len(frames) == 1:
+            ((t, n),) = frames.items()
+            return one_kind(t, n)
         ts = [t for t, n in frames.items() for _ in range(n)]
         return min(roi_snr(lv, noise, ts, gain, dark_frames) for lv in levels)
 
     dimmest_first = sorted(levels, key=lambda lv: lv.mean_dn_per_s)
+    one_kind_short = single_exposure_min_snr(dimmest_first, noise, gain, dark_frames, stop_below=target)
 
     def reaches(frames: Frames) -> bool:
         # snr_of(frames) >= target, stopping at the first channel short of it (the dimmest, mostly).
+        if len(frames) == 1:
+            ((t, n),) = frames.items()
+            return one_kind_short(t, n) >= target
         ts = [t for t, n in frames.items() for _ in range(n)]
         return all(roi_snr(lv, noise, ts, gain, dark_frames) >= target for lv in dimmest_first)
 
@@ -163,7 +182,8 @@ def plan_exposure(
 
     exposures = tuple(sorted(t for t, k in frames.items() for _ in range(k)))
     # The evaluation's own pixel SNR and verdict are replaced below, so it need not work them out.
-    plan = _evaluate(levels, noise, exposures, cam, target, pixel_snr_target, dark_frames, pixel=False)
+    known = snr_of(frames) if len(frames) == 1 else None  # the one-kind closure's bits are roi_snr's
+    plan = _evaluate(levels, noise, exposures, cam, target, pixel_snr_target, dark_frames, pixel=False, snr=known)
     clip_peak = any((lv.peak_dn_per_s * gain + dr) * t > sat for lv in levels for t in frames)
     if clip_peak and not all(lv.rates_dn_per_s for lv in levels):
         notes.append("expected_snr is a lower bound: no pixel distribution given, frames clipping the peak not counted")
@@ -267,10 +287,23 @@ def _shortest(ok: Callable[[float], bool], cam: CameraTiming, t_hi: float, guess
     a, b = math.log(lo), math.log(t_hi)
     if guess is not None and lo < guess < t_hi:
         # With ok monotone the halvings below end on the same two neighbouring floats from any bracket of
-        # the boundary, so a tight one around the estimate gives the same answer in ~25 halvings, not ~55.
-        a0, b0 = math.log(guess * (1 - 1e-9)), math.log(guess * (1 + 1e-9))
-        if a < a0 and b0 < b and not ok(math.exp(a0)) and ok(math.exp(b0)):
-            a, b = a0, b0
+        # the boundary, so a tight one around the estimate gives the same answer in ~8 halvings, not ~55.
+        # The closed form lands within ~1e-15 of the boundary; 1e-9 is the fallback of a worse estimate.
+        for rel in (1e-13, 1e-9):
+            a0, b0 = math.log(guess * (1 - rel)), math.log(guess * (1 + rel))
+            if a < a0 and b0 < b and not ok(math.exp(a0)) and ok(math.exp(b0)):
+                a, b = a0, b0
+                # The boundary is a float or two from the estimate's: walk to it (keeping ok(e^a) false and
+                # ok(e^b) true), and the halvings below have nothing left to halve.
+                x = math.log(guess)
+                for _ in range(8):
+                    if not a < x < b:
+                        break
+                    if ok(math.exp(x)):
+                        b, x = x, math.nextafter(x, -math.inf)
+                    else:
+                        a, x = x, math.nextafter(x, math.inf)
+                break
     # Halve until the midpoint rounds onto an end (about 55 halvings of a 1e-5..30 s range): from there on
     # a halving changes nothing, except that a start `a` which passes moves `b` onto it. So this is the
     # same boundary, to the last bit, that 100 halvings reach.
@@ -310,8 +343,12 @@ def evaluate_plan(
 def _evaluate(
     levels: Sequence[RoiLevel], noise: SensorNoise, exposures_s: Sequence[float], cam: CameraTiming,
     target_snr: float, pixel_snr_target: float | None, dark_frames: int, *, pixel: bool = True,
+    snr: float | None = None,
 ) -> ExposurePlan:
-    """``evaluate_plan``; without ``pixel`` the per-pixel SNR is left out (None) and ``reached`` ignores it."""
+    """``evaluate_plan``; without ``pixel`` the per-pixel SNR is left out (None) and ``reached`` ignores it.
+
+    ``snr`` is the ROI SNR of these exposures where the caller knows it already (the planner, for one kind).
+    """
     if not exposures_s or not all(math.isfinite(t) and t > 0 for t in exposures_s):
         raise ValueError(f"evaluate_plan: exposures_s = {tuple(exposures_s)!r}: expected positive seconds")
     gain = cam.gain
@@ -319,7 +356,8 @@ def _evaluate(
     dr = _dark_rate(noise, gain)
     exposures = tuple(sorted(float(t) for t in exposures_s))
     frames = _frames(exposures)
-    snr = min(roi_snr(lv, noise, exposures, gain, dark_frames) for lv in levels)
+    if snr is None:
+        snr = min(roi_snr(lv, noise, exposures, gain, dark_frames) for lv in levels)
     peak = max(lv.peak_dn_per_s for lv in levels)
     margin = sat / ((peak * gain + dr) * exposures[0]) if peak * gain + dr > 0 else math.inf
     notes: list[str] = []

@@ -48,7 +48,7 @@ class Joints:
 
     def as_dict(self) -> dict[str, Angle]:
         """The present joints as {name: degrees}, in field order."""
-        return {f.name: v for f in fields(self) if (v := getattr(self, f.name)) is not None}
+        return {name: v for name in _JOINT_FIELDS if (v := getattr(self, name)) is not None}
 
     @classmethod
     def from_dict(cls, angles_deg: Mapping[str, Angle]) -> Joints:
@@ -60,6 +60,10 @@ class Joints:
         if "light" not in angles_deg:
             raise ValueError("joints need a 'light' angle (degrees)")
         return cls(**dict(angles_deg))
+
+
+#: Joints' field names in order, looked up once: ``fields()`` cost a few microseconds, six times a point.
+_JOINT_FIELDS = tuple(f.name for f in fields(Joints))
 
 
 @dataclass(frozen=True)

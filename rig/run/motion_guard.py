@@ -11,6 +11,7 @@ or a move no split makes safe.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+from typing import cast
 
 import numpy as np
 
@@ -35,6 +36,14 @@ class MotionGuard:
         names = paths.names if paths is not None else []
         self._names = names
         self._allowed = {_key(float(np.asarray(getattr(j, n))) for n in names) for j in allowed}
+        self._link: MotionLink | None = None
+        self._link_homes = False
+
+    def _homing(self, link: MotionLink) -> HomingLink | None:
+        """``link`` if it homes (GRBL), else None; asked once a link: a runtime Protocol check costs ~12 us a move."""
+        if link is not self._link:
+            self._link, self._link_homes = link, isinstance(link, HomingLink)
+        return cast(HomingLink, link) if self._link_homes else None
 
     def legs(self, link: MotionLink, target: Mapping[str, float]) -> list[dict[str, float]]:
         """The poses to send, in order, to reach ``target`` safely from where the link reads the joints now."""
@@ -43,8 +52,9 @@ class MotionGuard:
         row = np.array([float(target[n]) for n in self._names])
         if _key(row) not in self._allowed:
             raise UnsafeMove(f"refused a move to {dict(target)}: not a pose the plan checked")
-        if isinstance(link, HomingLink):
-            link.ensure_position_known()  # a read-back is only "where the arms are" once the controller knows
+        homing = self._homing(link)
+        if homing is not None:
+            homing.ensure_position_known()  # a read-back is only "where the arms are" once the controller knows
         here = link.read_positions()
         src = np.array([float(here[n]) for n in self._names])
         legs = self.paths.legs(src, row)

@@ -316,6 +316,16 @@ class RunStore:
             self._load_journal(repair=False)
         return [_copy_json(r) for r in self._records]
 
+    def records_to_read(self) -> Sequence[Mapping[str, Any]]:
+        """Journal records in order, the store's own (not copied: read them, never change them).
+
+        For a reader of every record, such as the table at the end of a run: copying 200 records cost it
+        ~10 ms. A read-only view re-reads the journal each time, as ``records`` does.
+        """
+        if not self._writable:
+            self._load_journal(repair=False)
+        return tuple(self._records)
+
     def append(self, record: Mapping[str, Any]) -> None:
         """Append one record (a mapping with a str "kind") to the journal; it is on disk when this returns."""
         self._check_writable("append")

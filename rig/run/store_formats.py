@@ -160,6 +160,23 @@ class _NotJson(Exception):
 
 def _plain_json(value: Any) -> Any:
     """``jsonable`` without building the key path of every value: a journal record has hundreds of them."""
+    # The exact plain types first (nearly every value of a record), then the general walk below.
+    kind = type(value)
+    if kind is float:
+        if not math.isfinite(value):
+            raise _NotJson
+        return value
+    if kind is str or kind is int or kind is bool or value is None:
+        return value
+    if kind is list or kind is tuple:
+        return [_plain_json(v) for v in value]
+    if kind is dict:
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise _NotJson
+            out[k] = _plain_json(v)
+        return out
     if isinstance(value, np.ndarray | np.generic):
         value = value.tolist()
     if value is None or isinstance(value, bool | int | str):
@@ -209,6 +226,8 @@ def _named(value: Any, where: str) -> Any:
 
 
 def _cell(row: int, col: str, value: Any) -> str:
+    if type(value) is float and math.isfinite(value):  # most cells: the general checks below, skipped
+        return repr(value)
     if isinstance(value, np.generic):
         value = value.item()
     if value is None:
@@ -224,14 +243,20 @@ def _cell(row: int, col: str, value: Any) -> str:
 
 def csv_text(rows: Sequence[Mapping[str, Any]], columns: Sequence[str] | None = None) -> str:
     """A tidy CSV: header ``columns`` (default: keys in order of first appearance), exact floats, None as empty."""
-    cols = list(dict.fromkeys(k for row in rows for k in row) if columns is None else columns)
+    if columns is None:
+        first: dict[str, None] = {}
+        for row in rows:  # keys in order of first appearance, a row at a time
+            first.update(dict.fromkeys(row))
+        columns = list(first)
+    cols = list(columns)
     if len(set(cols)) != len(cols) or not all(isinstance(c, str) for c in cols):
         raise ValueError(f"columns {cols!r}: expected distinct str names")
     buf = io.StringIO()
     out = csv.writer(buf, lineterminator="\n")  # "\n", not csv's "\r\n": plain text, diffable
     out.writerow(cols)
+    known = set(cols)
     for i, row in enumerate(rows):
-        extra = [k for k in row if k not in cols]
+        extra = [k for k in row if k not in known]
         if extra:
             raise ValueError(f"row {i} has keys {extra!r} not among the columns {cols!r}")
         out.writerow([_cell(i, c, row.get(c)) for c in cols])

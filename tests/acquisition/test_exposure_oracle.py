@@ -16,7 +16,15 @@ import pytest
 
 from acquisition.exposure import plan as plan_module
 from acquisition.exposure.plan import plan_exposure
-from acquisition.exposure.snr import _dark_rate, _frames, _merged_variance, exposure_for_snr, roi_snr
+from acquisition.exposure.snr import (
+    _dark_rate,
+    _frames,
+    _merged_variance,
+    exposure_for_snr,
+    roi_snr,
+    single_exposure_min_snr,
+    single_exposure_snr,
+)
 from acquisition.exposure.spec import CameraTiming, ExposureError, ExposurePlan, RoiLevel
 from acquisition.noise import SensorNoise
 
@@ -60,10 +68,18 @@ def oracle_shortest(ok: Callable[[float], bool], cam: CameraTiming, t_hi: float,
     return t if t is not None and t <= t_hi and ok(t) else t_hi
 
 
+def oracle_min_snr(
+    levels: Sequence[RoiLevel], noise: SensorNoise, gain: float = 1.0, dark_frames: int = 0, stop_below: float = 0.0
+) -> Callable[[float, int], float]:
+    """The lowest channel's SNR of one exposure repeated, through the original roi_snr."""
+    return lambda t, n: min(oracle_roi_snr(lv, noise, [t] * n, gain, dark_frames) for lv in levels)
+
+
 def oracle_plan(monkeypatch: pytest.MonkeyPatch, *args: object, **kwargs: object) -> ExposurePlan:
     with monkeypatch.context() as m:
         m.setattr(plan_module, "_shortest", oracle_shortest)
         m.setattr(plan_module, "roi_snr", oracle_roi_snr)
+        m.setattr(plan_module, "single_exposure_min_snr", oracle_min_snr)
         return plan_exposure(*args, **kwargs)  # type: ignore[arg-type]
 
 
@@ -142,3 +158,50 @@ def test_scalar_mean_level_snr_matches_the_numpy_merge_bit_for_bit() -> None:
         ts = list(10 ** rng.uniform(-5, 0, size=int(rng.integers(1, 5))))
         gain, darks = float(rng.choice([1.0, 2.5])), int(rng.integers(0, 3))
         assert roi_snr(level, noise, ts, gain, darks) == oracle_roi_snr(level, noise, ts, gain, darks)
+
+
+def test_single_exposure_snr_matches_roi_snr_bit_for_bit() -> None:
+    rng = np.random.default_rng(11)
+    for noise, _ in itertools.product(NOISES, range(200)):
+        peak = float(10 ** rng.uniform(0, 7))
+        level = RoiLevel(peak, peak * float(rng.choice([0.0, rng.uniform(0.01, 1), 1.0])), int(rng.integers(1, 500)))
+        gain, darks = float(rng.choice([1.0, 2.5, 4.0])), int(rng.integers(0, 3))
+        snr = single_exposure_snr(level, noise, gain, darks)
+        for t in 10 ** rng.uniform(-6, 1, size=8):  # some clip the peak, some the mean, most neither
+            n = int(rng.integers(1, 8))
+            assert snr(float(t), n) == oracle_roi_snr(level, noise, [float(t)] * n, gain, darks)
+    spread = RoiLevel(100.0, 55.0, 4, 10.0, (10.0, 50.0, 100.0), (0.25, 0.5, 0.25))
+    assert single_exposure_snr(spread, NOISES[0])(0.5, 3) == roi_snr(spread, NOISES[0], [0.5] * 3)
+
+
+def test_single_exposure_min_snr_matches_roi_snr_bit_for_bit() -> None:
+    rng = np.random.default_rng(12)
+    for noise, _ in itertools.product(NOISES, range(150)):
+        peak = float(10 ** rng.uniform(0, 7))
+        levels = [RoiLevel(peak, peak * float(rng.choice([rng.uniform(0.01, 1), 1.0])), int(rng.integers(1, 500)))
+                  for _ in range(int(rng.integers(1, 4)))]  # fmt: skip
+        gain, darks = float(rng.choice([1.0, 2.5, 4.0])), int(rng.integers(0, 3))
+        lowest = single_exposure_min_snr(levels, noise, gain, darks)
+        for t in 10 ** rng.uniform(-6, 1, size=6):
+            n = int(rng.integers(1, 8))
+            want = min(oracle_roi_snr(lv, noise, [float(t)] * n, gain, darks) for lv in levels)
+            assert lowest(float(t), n) == want
+            target = float(rng.uniform(0, 2 * want)) if want > 0 else 1.0
+            short = single_exposure_min_snr(levels, noise, gain, darks, stop_below=target)
+            assert (short(float(t), n) >= target) == (want >= target)
+    dark = [RoiLevel(5.0, 0.0, 4), RoiLevel(100.0, 55.0, 4, 10.0, (10.0, 50.0, 100.0), (0.25, 0.5, 0.25))]
+    assert single_exposure_min_snr(dark, NOISES[0])(0.5, 3) == 0.0
+    assert single_exposure_min_snr(dark[1:], NOISES[0])(0.5, 3) == roi_snr(dark[1], NOISES[0], [0.5] * 3)
+
+
+def test_geomspace_shortcut_equals_numpy() -> None:
+    from acquisition.exposure.snr import _geomspace
+
+    rng = np.random.default_rng(8)
+    for _ in range(3000):
+        lo = float(10 ** rng.uniform(-9, 7))
+        hi = lo * float(10 ** rng.uniform(0, 9)) if rng.random() < 0.95 else lo
+        num = int(rng.choice([2, 3, 48, 49]))
+        assert _geomspace(lo, hi, num) == np.geomspace(lo, hi, num).tolist(), (lo, hi, num)
+    assert _geomspace(5.0, 5.0, 48) == np.geomspace(5.0, 5.0, 48).tolist()
+    assert _geomspace(1e-300, 1e300, 48) == np.geomspace(1e-300, 1e300, 48).tolist()

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from acquisition.frame import ExposureSettings, Frame
-from rig.run.bounded_camera import BoundedCamera, CameraTimeout
+from rig.run.bounded_camera import BoundedCamera, CameraError, CameraTimeout
 
 
 class RecordingCamera:
@@ -83,3 +83,50 @@ def test_a_hung_capture_times_out_and_the_camera_is_not_called_again() -> None:
         camera.set_exposure(0.02)
     inner.block.set()
     assert [c[0] for c in inner.calls] == ["set_exposure", "capture"]
+
+
+class DarkCamera(RecordingCamera):
+    """A recording camera with dark frames, whose set_exposure can be made to answer wrongly."""
+
+    answer: object = None
+
+    def set_exposure(self, exposure_s: float, gain: float | None = None) -> ExposureSettings:
+        applied = super().set_exposure(exposure_s * 2, gain)  # a camera that applies what it can, not what was asked
+        return applied if self.answer is None else self.answer  # type: ignore[return-value]
+
+    def capture_dark(self) -> Frame:
+        self.calls.append(("capture_dark", threading.get_ident()))
+        return Frame(np.ones((2, 2)), "linear", 0.01)
+
+
+def test_exposed_frames_makes_the_same_calls_in_one_hand_off() -> None:
+    inner = DarkCamera()
+    camera = BoundedCamera(inner)
+    applied, frames = camera.exposed_frames(0.01)
+    assert applied.exposure_s == 0.02 and len(frames) == 1 and not frames[0].data.any()
+    applied, darks = camera.exposed_frames(0.04, 3, dark=True)
+    assert applied.exposure_s == 0.08 and [f.data.sum() for f in darks] == [4.0] * 3
+    assert [c[0] for c in inner.calls] == ["set_exposure", "capture", "set_exposure"] + ["capture_dark"] * 3
+    assert len({c[1] for c in inner.calls}) == 1 and threading.get_ident() not in {c[1] for c in inner.calls}
+    camera.close()
+
+
+def test_exposed_frames_refuses_a_wrong_answer_before_any_frame() -> None:
+    inner = DarkCamera()
+    inner.answer = "ok"
+    camera = BoundedCamera(inner)
+    with pytest.raises(CameraError, match="set_exposure returned 'ok'"):
+        camera.exposed_frames(0.01, 2, dark=True)
+    assert [c[0] for c in inner.calls] == ["set_exposure"]
+    camera.close()
+
+
+def test_a_hung_exposed_frame_times_out() -> None:
+    inner = RecordingCamera()
+    camera = BoundedCamera(inner, slack_s=0.2, exposure_factor=0.0)
+    inner.block.clear()
+    with pytest.raises(CameraTimeout, match=r"did not return within 0\.2 s"):
+        camera.exposed_frames(0.01)
+    with pytest.raises(CameraTimeout, match="refused"):
+        camera.exposed_frames(0.01)
+    inner.block.set()
