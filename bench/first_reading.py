@@ -8,6 +8,11 @@ caches. Goal: the first reading within 2 s on a warm cache. Anchor, measured in 
 a bare interpreter importing numpy (what any Python tool pays before doing anything). Python's bytecode cache
 is left on for both runs (an installed gonio has its .pyc files), even where the calling shell turns it off.
 
+The example rig reads a 4 x 4 ROI crop, which the HDR merge takes in numpy, so nothing compiles there. A
+camera delivering larger frames (a wider ROI, a whole frame) merges in numba's compiled passes: the same
+pair of runs on a 64 x 64 ROI, with caches of its own, measures that one-time compilation and checks its
+notice is shown.
+
 Run: ``.venv/bin/python -m bench.first_reading [--no-docs]``.
 """
 
@@ -60,12 +65,24 @@ def first_records(journal: Path) -> set[str]:
     return kinds
 
 
-def timed_run(work: Path, name: str, env: dict[str, str]) -> dict[str, float | str]:
+LARGE_ROI = "roi = [224, 224, 288, 288]"
+
+
+def large_roi_rig(work: Path) -> Path:
+    """The example rig with a 64 x 64 px ROI: frames large enough for the merge's compiled passes."""
+    text = RIG.read_text()
+    line = next(ln for ln in text.splitlines() if ln.startswith("roi = "))
+    rig = work / "rig_large_roi.toml"
+    rig.write_text(text.replace(line, LARGE_ROI))
+    return rig
+
+
+def timed_run(work: Path, name: str, env: dict[str, str], rig: Path = RIG) -> dict[str, float | str]:
     """Launch ``gonio run``; seconds to the first record, to the first point and to the end; the stderr."""
     sweep = work / "sweep.toml"
     sweep.write_text(SWEEP)
     out = work / name
-    cmd = [sys.executable, "-m", "gonio.cli", "run", str(sweep), "--rig", str(RIG), "--out", str(out)]
+    cmd = [sys.executable, "-m", "gonio.cli", "run", str(sweep), "--rig", str(rig), "--out", str(out)]
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     seen: dict[str, float] = {}
@@ -100,25 +117,33 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory(prefix="gonio-first-") as tmp:
         work = Path(tmp)
-        env, bytecode_off = installed_env(dict(os.environ, NUMBA_CACHE_DIR=str(work / "numba"),
-                                               HOME=str(work / "home")))  # fmt: skip
-        (work / "home").mkdir()
-        anchor = interpreter_start(env)
-        for label in ("cold", "warm"):
-            load = load_average()
-            r = timed_run(work, label, env)
-            compiling = "compiling kernels (first run only)" in str(r["stderr"])
-            rows.append([label, f"{float(r['first']):.1f}", f"{float(r['point']):.1f}", f"{float(r['total']):.1f}",
-                         "yes" if compiling else "no", f"{float(r['first']) / GOAL_S:.2f}",
-                         f"{float(r['first']) / anchor:.1f}", load])  # fmt: skip
-            print(rows[-1], flush=True)
-    head = ["cache", "first reading (s)", "first point (s)", "whole run (s)", "'compiling kernels' shown",
+        anchor = 0.0
+        bytecode_off = False
+        for caches, rig, roi in (("", RIG, "4 x 4 (numpy merge)"), ("-large", large_roi_rig(work),
+                                                                     "64 x 64 (compiled merge)")):
+            env, bytecode_off = installed_env(dict(os.environ, NUMBA_CACHE_DIR=str(work / f"numba{caches}"),
+                                                   HOME=str(work / f"home{caches}")))  # fmt: skip
+            (work / f"home{caches}").mkdir()
+            anchor = anchor or interpreter_start(env)
+            for label in ("cold", "warm"):
+                load = load_average()
+                r = timed_run(work, label + caches, env, rig)
+                compiling = "compiling kernels (first run only)" in str(r["stderr"])
+                first = float(r["first"])
+                rows.append([roi, label, f"{first:.1f}", f"{float(r['point']):.1f}", f"{float(r['total']):.1f}",
+                             "yes" if compiling else "no", f"{first / GOAL_S:.2f}", f"{first / anchor:.1f}",
+                             load])  # fmt: skip
+                print(rows[-1], flush=True)
+    head = ["ROI", "cache", "first reading (s)", "first point (s)", "whole run (s)", "'compiling kernels' shown",
             f"ratio to {GOAL_S:g} s goal", "ratio to anchor", "load before"]  # fmt: skip
     print(f"anchor: `python -c 'import numpy'` took {anchor:.2f} s")
     print(format_table(head, rows))
-    warm = float(rows[-1][1])
+    warm = float(rows[1][2])
+    compile_s = float(rows[2][2]) - float(rows[3][2])
     print(f"\nfirst reading on a warm cache: {warm:.1f} s; goal <= {GOAL_S:g} s; ratio {warm / GOAL_S:.2f} "
-          f"({'met' if warm <= GOAL_S else 'not met'} on this machine, {rows[-1][-1]} before the run)")
+          f"({'met' if warm <= GOAL_S else 'not met'} on this machine, {rows[1][-1]} before the run)")
+    print(f"one-time compilation of the merge's passes (64 x 64 ROI, cold minus warm first reading): "
+          f"{compile_s:.1f} s; the notice shown on the cold run: {rows[2][5]}, on the warm one: {rows[3][5]}")
     if bytecode_off:
         print("(PYTHONDONTWRITEBYTECODE was set in this shell; the runs were given Python's bytecode cache)")
     if args.no_docs:
@@ -127,15 +152,18 @@ def main() -> None:
         "## First reading (`bench/first_reading.py`)", "",
         f"Command: `.venv/bin/python -m bench.first_reading`. Run on {datetime.date.today()}.",
         f"Machine: {machine}, shared with other work (load averages in the table).", "",
-        "`gonio run` of 4 points on the simulated rig (`examples/rig_simulated.toml`), from launch to the first "
-        "journal record (the reference reading before the first point) and to the first point. Cold: empty "
-        "numba and Dr.Jit kernel caches; warm: the same caches after the cold run. Both runs may write and read "
-        "Python's bytecode cache, as an installed gonio does"
+        "`gonio run` of 4 points on the simulated rig (`examples/rig_simulated.toml`, its 4 x 4 px ROI; then the "
+        "same rig with a 64 x 64 px ROI, whose frames the merge takes in numba's compiled passes, with caches of "
+        "its own), from launch to the first journal record (the reference reading before the first point) and to "
+        "the first point. Cold: empty numba and Dr.Jit kernel caches; warm: the same caches after the cold run. "
+        "All runs may write and read Python's bytecode cache, as an installed gonio does"
         f"{' (this shell set PYTHONDONTWRITEBYTECODE; the runs did not inherit it)' if bytecode_off else ''}. "
         f"Anchor: `python -c 'import numpy'` in the same environment, {anchor:.2f} s.", "",
         markdown_table(head, rows), "",
         f"First reading on a warm cache: **{warm:.1f} s** against the goal of {GOAL_S:g} s (ratio "
-        f"{warm / GOAL_S:.2f}; {rows[-1][-1]} before the run).",
+        f"{warm / GOAL_S:.2f}; {rows[1][-1]} before the run). The merge's one-time compilation, where frames are "
+        f"larger than an ROI crop: {compile_s:.1f} s (cold minus warm first reading, 64 x 64 ROI), after the notice "
+        f"'compiling kernels (first run only)' (shown cold: {rows[2][5]}; warm: {rows[3][5]}).",
     ])  # fmt: skip
     write_section(DOCS, "first_reading", body)
     print(f"\nSection 'first_reading' written to {DOCS}")
