@@ -18,6 +18,7 @@ import pytest
 
 from acquisition.cfa import HdrImage
 from acquisition.roi import Box, RoiReading
+from rig.run import store_formats
 from rig.run.config import parse, rig_config, sweep_config
 from rig.run.config_schema import RigFile, SweepFile
 from rig.run.hardware import dynamixel_options
@@ -56,6 +57,10 @@ def reference_darks(
     return darks, tuple(taken)
 
 
+def refuse_exact(value: Any) -> Any:
+    raise store_formats.NotExactJson
+
+
 def as_before(m: pytest.MonkeyPatch) -> None:
     """Every shortcut of issue 21 replaced by what it replaced."""
     import acquisition.exposure.plan as plan
@@ -63,6 +68,7 @@ def as_before(m: pytest.MonkeyPatch) -> None:
     import rig.instrument.kinematics as kinematics
     import rig.run.measure as measure
     import rig.run.runner as runner
+    import rig.run.store as store
     import rig.run.store_formats as store_formats
 
     m.setattr(plan, "_shortest", oracle_shortest)
@@ -77,6 +83,8 @@ def as_before(m: pytest.MonkeyPatch) -> None:
     m.setattr(runner, "_f", reference_round)
     m.setattr(store_formats, "_plain_json", lambda value: store_formats._named(value, "record"))
     m.setattr(RunStore, "records_to_read", RunStore.records)
+    m.setattr(store, "exact_json", refuse_exact)  # every record by jsonable, its line parsed again
+    m.setattr(store, "_encode_line", lambda value: store._dumps(value, separators=(",", ":")))
 
 
 def sweep_run(where: Path) -> Path:
