@@ -27,7 +27,12 @@ from rig.run.session import capture_settings, make_plan, manifest
 from rig.run.store import RunStore
 from simulator.from_config import spec_from
 from simulator.rig import SimulatedRig
-from tests.acquisition.test_exposure_oracle import oracle_min_snr, oracle_roi_snr, oracle_shortest
+from tests.acquisition.test_exposure_oracle import (
+    oracle_min_snr,
+    oracle_roi_snr,
+    oracle_shortest,
+    reference_merged_variance,
+)
 from tests.rig.run.test_reading_shortcuts import reference_level_of, reference_reduce_roi
 from tests.rig.run.test_runner_rounding import reference as reference_round
 
@@ -74,6 +79,7 @@ def as_before(m: pytest.MonkeyPatch) -> None:
     m.setattr(plan, "_shortest", oracle_shortest)
     m.setattr(plan, "roi_snr", oracle_roi_snr)
     m.setattr(plan, "single_exposure_min_snr", oracle_min_snr)
+    m.setattr(snr, "_merged_variance", reference_merged_variance)
     m.setattr(snr, "_geomspace", lambda lo, hi, num: np.geomspace(lo, hi, num).tolist())
     m.setattr(measure, "reduce_hdr_roi", reference_reduce_hdr_roi)
     m.setattr(measure, "level_of", reference_level_of)
