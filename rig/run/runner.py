@@ -118,6 +118,16 @@ class RunSummary:
     rig_time_s: float = 0.0
 
 
+def _as_list(a: Any) -> list[Any]:
+    """``np.atleast_1d(a).tolist()``: a reading's per-channel numbers as a list (0-d or 1-d arrays directly).
+
+    numpy's atleast_1d costs ~1 us a call, four times a point, for an array that is already what it returns.
+    """
+    if type(a) is np.ndarray and a.ndim <= 1:
+        return list(a.reshape(-1).tolist())
+    return list(np.atleast_1d(a).tolist())
+
+
 def _f(x: float) -> float:
     """``x`` rounded to 9 decimals as ``np.round`` does it (times 1e9, to the nearest even, over 1e9), -0.0 as 0.0.
 
@@ -406,9 +416,9 @@ class Runner:
     def _reading_fields(self, reading: Reading) -> dict[str, Any]:
         r = reading.roi
         return {
-            "reading": np.atleast_1d(r.mean).tolist(), "reading_std_error": np.atleast_1d(r.std_error).tolist(),
-            "n_pixels": r.n_pixels, "n_flagged": np.atleast_1d(r.n_flagged).tolist(), "lower_bound": r.lower_bound,
-            "dark": r.dark, "n_dark": np.atleast_1d(r.n_dark).tolist(),
+            "reading": _as_list(r.mean), "reading_std_error": _as_list(r.std_error),
+            "n_pixels": r.n_pixels, "n_flagged": _as_list(r.n_flagged), "lower_bound": r.lower_bound,
+            "dark": r.dark, "n_dark": _as_list(r.n_dark),
             "exposures_s": list(reading.exposures_s), "dark_exposures_s": list(reading.dark_exposures_s),
             "test_exposures_s": list(reading.test_exposures_s), "level": reading.level.as_dict(),
             "notes": list(reading.notes),

@@ -35,6 +35,7 @@ from tests.acquisition.test_exposure_oracle import (
 )
 from tests.rig.run.test_reading_shortcuts import reference_level_of, reference_reduce_roi
 from tests.rig.run.test_runner_rounding import reference as reference_round
+from tests.rig.run.test_runner_rounding import reference_as_list
 
 
 def reference_reduce_hdr_roi(hdr: HdrImage, roi: Box, *, on_flagged: Any = "exclude") -> RoiReading:
@@ -87,6 +88,7 @@ def as_before(m: pytest.MonkeyPatch) -> None:
     m.setattr(measure, "_darks", reference_darks)
     m.setattr(kinematics, "forward_one", lambda geometry, joints: None)
     m.setattr(runner, "_f", reference_round)
+    m.setattr(runner, "_as_list", reference_as_list)
     m.setattr(store_formats, "_plain_json", lambda value: store_formats._named(value, "record"))
     m.setattr(RunStore, "records_to_read", RunStore.records)
     m.setattr(store, "exact_json", refuse_exact)  # every record by jsonable, its line parsed again
