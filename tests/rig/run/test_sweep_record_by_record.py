@@ -33,6 +33,7 @@ from tests.acquisition.test_exposure_oracle import (
     oracle_shortest,
     reference_merged_variance,
 )
+from tests.rig.run.test_check_shortcuts import reference_roi_check
 from tests.rig.run.test_reading_shortcuts import reference_level_of, reference_reduce_roi
 from tests.rig.run.test_runner_rounding import reference as reference_round
 from tests.rig.run.test_runner_rounding import reference_as_list
@@ -86,6 +87,7 @@ def as_before(m: pytest.MonkeyPatch) -> None:
     m.setattr(measure, "level_of", reference_level_of)
     m.setattr(measure, "_shoot", reference_shoot)
     m.setattr(measure, "_darks", reference_darks)
+    m.setattr(measure, "_roi_check", reference_roi_check)
     m.setattr(kinematics, "forward_one", lambda geometry, joints: None)
     m.setattr(runner, "_f", reference_round)
     m.setattr(runner, "_as_list", reference_as_list)
