@@ -121,16 +121,17 @@ def _darks(camera: Camera, exposures: tuple[float, ...], n: int) -> tuple[dict[f
     take_dark = getattr(camera, "capture_dark", None)
     if n == 0 or take_dark is None:
         return {}, ()
-    exposed = getattr(camera, "exposed_frames", None)
     darks: dict[float, list[Frame]] = {}
     taken: list[float] = []
+    series = getattr(camera, "exposed_series", None)
+    if series is not None:  # a BoundedCamera (the runner's): every exposure's darks in one hand-off
+        for settings, frames in series([(t, n) for t in sorted(set(exposures))], dark=True):
+            darks[settings.exposure_s] = frames
+            taken += [settings.exposure_s] * n
+        return darks, tuple(taken)
     for t in sorted(set(exposures)):
-        if exposed is not None:
-            settings, frames = exposed(t, n, dark=True)
-            applied = settings.exposure_s
-        else:
-            applied = camera.set_exposure(t).exposure_s
-            frames = [take_dark() for _ in range(n)]
+        applied = camera.set_exposure(t).exposure_s
+        frames = [take_dark() for _ in range(n)]
         darks[applied] = frames
         taken += [applied] * n
     return darks, tuple(taken)
