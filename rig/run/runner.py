@@ -39,6 +39,7 @@ import numpy as np
 from tqdm import tqdm
 
 from acquisition.frame import Camera
+from acquisition.roi import channel_list
 from rig.instrument.alignment import Alignment, aligned_forward, light_distance_m
 from rig.instrument.axis import Axis
 from rig.instrument.calibration_file import GeometryCalibration
@@ -118,14 +119,8 @@ class RunSummary:
     rig_time_s: float = 0.0
 
 
-def _as_list(a: Any) -> list[Any]:
-    """``np.atleast_1d(a).tolist()``: a reading's per-channel numbers as a list (0-d or 1-d arrays directly).
-
-    numpy's atleast_1d costs ~1 us a call, four times a point, for an array that is already what it returns.
-    """
-    if type(a) is np.ndarray and a.ndim <= 1:
-        return list(a.reshape(-1).tolist())
-    return list(np.atleast_1d(a).tolist())
+#: A reading's per-channel numbers as a list (np.atleast_1d(a).tolist(), without numpy's call for an array).
+_as_list = channel_list
 
 
 def _f(x: float) -> float:
