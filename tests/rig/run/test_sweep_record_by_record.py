@@ -1,7 +1,9 @@
 """A short sweep on the simulated rig writes, record by record, the journal and table it wrote before issue 21.
 
-The controller's per-point work was made cheaper (scalar kinematics and rounding, a faster planner search,
-ROI shortcuts, one camera hand-off per exposure, a faster journal walk). Each shortcut has its own
+The controller's per-point work was made cheaper (scalar kinematics and rounding, a faster planner search and
+one-kind merge variance, ROI shortcuts, one camera hand-off per exposure and one for a point's darks, a faster
+journal walk, the journal's records kept rather than parsed again, the bracket check's settings and frames
+without dataclasses.replace, the reading's lists without atleast_1d). Each shortcut has its own
 bit-for-bit test; this one runs the same sweep twice, once as it is and once with every shortcut replaced
 by the implementation it replaced (kept in the tests), and compares what the two runs wrote.
 """
