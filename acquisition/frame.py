@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal, Protocol, runtime_checkable
 
@@ -65,9 +66,9 @@ class Frame:
         where = f"frame from {self.source}" if self.source else f"frame from {self.camera_id}"
         if self.kind not in ("raw", "linear", "8bit"):
             raise FrameError(f"{where}: kind = {self.kind!r}, expected 'raw', 'linear' or '8bit'")
-        if not (np.isfinite(self.exposure_s) and self.exposure_s > 0):
+        if not _positive(self.exposure_s):
             raise FrameError(f"{where}: exposure_s = {self.exposure_s!r}, expected a positive number of seconds")
-        if not (np.isfinite(self.gain) and self.gain > 0):
+        if not _positive(self.gain):
             raise FrameError(f"{where}: gain = {self.gain!r}, expected a positive number")
         if self.data.ndim not in (2, 3):
             raise FrameError(f"{where}: data has shape {self.data.shape}, expected (H, W) or (H, W, C)")
@@ -85,6 +86,13 @@ class Frame:
     def shape(self) -> tuple[int, ...]:
         """Shape of the pixel data."""
         return tuple(self.data.shape)
+
+
+def _positive(x: float) -> bool:
+    """Finite and > 0; a plain float without numpy's call (~1 us, twice a frame, a frame copied a point or two)."""
+    if type(x) is float:
+        return math.isfinite(x) and x > 0
+    return bool(np.isfinite(x) and x > 0)
 
 
 @dataclass(frozen=True)

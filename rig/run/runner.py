@@ -39,6 +39,7 @@ import numpy as np
 from tqdm import tqdm
 
 from acquisition.frame import Camera
+from acquisition.roi import channel_list
 from rig.instrument.alignment import Alignment, aligned_forward, light_distance_m
 from rig.instrument.axis import Axis
 from rig.instrument.calibration_file import GeometryCalibration
@@ -116,6 +117,10 @@ class RunSummary:
     table: str
     #: Rig time this call spent, by the instruments' clock (s): simulated time on the simulated rig.
     rig_time_s: float = 0.0
+
+
+#: A reading's per-channel numbers as a list (np.atleast_1d(a).tolist(), without numpy's call for an array).
+_as_list = channel_list
 
 
 def _f(x: float) -> float:
@@ -406,9 +411,9 @@ class Runner:
     def _reading_fields(self, reading: Reading) -> dict[str, Any]:
         r = reading.roi
         return {
-            "reading": np.atleast_1d(r.mean).tolist(), "reading_std_error": np.atleast_1d(r.std_error).tolist(),
-            "n_pixels": r.n_pixels, "n_flagged": np.atleast_1d(r.n_flagged).tolist(), "lower_bound": r.lower_bound,
-            "dark": r.dark, "n_dark": np.atleast_1d(r.n_dark).tolist(),
+            "reading": _as_list(r.mean), "reading_std_error": _as_list(r.std_error),
+            "n_pixels": r.n_pixels, "n_flagged": _as_list(r.n_flagged), "lower_bound": r.lower_bound,
+            "dark": r.dark, "n_dark": _as_list(r.n_dark),
             "exposures_s": list(reading.exposures_s), "dark_exposures_s": list(reading.dark_exposures_s),
             "test_exposures_s": list(reading.test_exposures_s), "level": reading.level.as_dict(),
             "notes": list(reading.notes),

@@ -36,7 +36,16 @@ from numpy.typing import ArrayLike
 
 from acquisition.files.atomic import atomic_path
 from model.version import gonio_version
-from rig.run.store_formats import Float32Array, csv_text, jsonable, parse_journal, read_exr, write_exr
+from rig.run.store_formats import (
+    Float32Array,
+    NotExactJson,
+    csv_text,
+    exact_json,
+    jsonable,
+    parse_journal,
+    read_exr,
+    write_exr,
+)
 
 FORMAT = "gonio-run/1"
 MANIFEST, JOURNAL, LOCK, STATUS, IMAGES = "manifest.json", "journal.jsonl", "lock", "status.json", "images"
@@ -125,6 +134,11 @@ def _plain(value: Any, where: str, file: Path) -> Any:
 
 def _dumps(value: Any, **kw: Any) -> str:
     return json.dumps(value, allow_nan=False, ensure_ascii=True, **kw)
+
+
+#: The journal line's encoder, made once (json.dumps with keywords builds one a call, ~1 us of its ~19 a record):
+#: the encoder json.dumps builds from the same keywords, so the same text.
+_encode_line = json.JSONEncoder(allow_nan=False, ensure_ascii=True, separators=(",", ":")).encode
 
 
 def _copy_json(value: Any) -> Any:
@@ -334,7 +348,11 @@ class RunStore:
             raise RunStoreError(f"{where}: record needs a 'kind' (a non-empty str): {record!r}")
         if self._finished:
             raise RunStoreError(f"{where}: the run is finished ({STATUS}); its journal is closed")
-        data = (_dumps(_plain(record, "record", where), separators=(",", ":")) + "\n").encode("ascii")
+        try:  # nearly every record: exact plain types, kept as the copy that json.loads would read back
+            plain, reparse = exact_json(record), False
+        except NotExactJson:
+            plain, reparse = _plain(record, "record", where), True
+        data = (_encode_line(plain) + "\n").encode("ascii")
         assert self._journal_fd is not None
         fd, before = self._journal_fd, self._journal_size
         try:
@@ -354,7 +372,7 @@ class RunStore:
             self._broken = f"fsync failed ({exc})"
             raise RunStoreError(f"{where}: cannot fsync: {exc}") from exc
         self._journal_size = before + len(data)
-        self._records.append(json.loads(data))
+        self._records.append(json.loads(data) if reparse else plain)
 
     def completed(self, kind: str = "point", key: str = "index") -> set[Any]:
         """Values of ``key`` over the records of ``kind`` (lists become tuples): what a resume can skip."""

@@ -197,6 +197,36 @@ def _plain_json(value: Any) -> Any:
     raise _NotJson
 
 
+class NotExactJson(Exception):
+    """Raised by ``exact_json`` at anything but exact plain JSON types (a subclass, a numpy value, NaN)."""
+
+
+def exact_json(value: Any) -> Any:
+    """A fresh copy of ``value`` made only of exact JSON types: what ``json.loads`` reads back from its text.
+
+    The journal keeps this copy instead of parsing the line it wrote (~55 us a record in the sweep). Only exact
+    types qualify: an IntEnum, a float or str subclass or a numpy scalar would read back as another type, so
+    it raises ``NotExactJson`` there and the caller takes the general path (``jsonable``, then a re-parse).
+    """
+    kind = type(value)
+    if kind is float:
+        if not math.isfinite(value):
+            raise NotExactJson
+        return value
+    if kind is str or kind is int or kind is bool or value is None:
+        return value
+    if kind is list or kind is tuple:
+        return [exact_json(v) for v in value]
+    if kind is dict:
+        out = {}
+        for k, v in value.items():
+            if type(k) is not str:
+                raise NotExactJson
+            out[k] = exact_json(v)
+        return out
+    raise NotExactJson
+
+
 def jsonable(value: Any, where: str) -> Any:
     """``value`` as plain JSON types (numpy scalars and arrays become numbers and lists); errors name the key."""
     try:

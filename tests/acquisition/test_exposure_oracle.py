@@ -17,6 +17,8 @@ import pytest
 from acquisition.exposure import plan as plan_module
 from acquisition.exposure.plan import plan_exposure
 from acquisition.exposure.snr import (
+    FloatArray,
+    Frames,
     _dark_rate,
     _frames,
     _merged_variance,
@@ -27,6 +29,27 @@ from acquisition.exposure.snr import (
 )
 from acquisition.exposure.spec import CameraTiming, ExposureError, ExposurePlan, RoiLevel
 from acquisition.noise import SensorNoise
+
+
+def reference_merged_variance(
+    rates: FloatArray, frames: Frames, noise: SensorNoise, gain: float, dark_frames: int, limit_dn: float
+) -> FloatArray:
+    """The merge variance before its one-kind path: every kind's terms added to zeros, the square per pixel."""
+    rates = np.asarray(rates, dtype=np.float64)
+    rg = rates * gain
+    num = np.zeros_like(rates)
+    total_t = np.zeros_like(rates)
+    dr = _dark_rate(noise, gain)
+    for t, n in frames.items():
+        used = (rg + dr) * t <= limit_dn
+        var = n * noise.variance_dn2(rg * t, t, gain)
+        if dark_frames:
+            var = var + n * n * noise.variance_dn2(0.0, t, gain) / dark_frames
+        num += np.where(used, var, 0.0)
+        total_t += np.where(used, n * t, 0.0)
+    out = np.full_like(rates, np.inf)
+    np.divide(num, (gain * total_t) ** 2, out=out, where=total_t > 0)
+    return out
 
 
 def oracle_roi_snr(
@@ -45,7 +68,7 @@ def oracle_roi_snr(
         frames = {t: n for t, n in frames.items() if (level.peak_dn_per_s * gain + dr) * t <= sat}
         r = np.array([level.mean_dn_per_s])
         w = np.array([1.0])
-    var = _merged_variance(r, frames, noise, gain, dark_frames, sat)
+    var = reference_merged_variance(r, frames, noise, gain, dark_frames, sat)
     if not np.all(np.isfinite(var[w > 0])):
         return 0.0
     var_mean = float(np.sum(w * var)) / level.n_pixels
@@ -205,3 +228,32 @@ def test_geomspace_shortcut_equals_numpy() -> None:
         assert _geomspace(lo, hi, num) == np.geomspace(lo, hi, num).tolist(), (lo, hi, num)
     assert _geomspace(5.0, 5.0, 48) == np.geomspace(5.0, 5.0, 48).tolist()
     assert _geomspace(1e-300, 1e300, 48) == np.geomspace(1e-300, 1e300, 48).tolist()
+
+
+def test_one_kind_merge_variance_equals_the_general_loop_bit_for_bit() -> None:
+    rng = np.random.default_rng(21)
+    edges = np.array([0.0, -0.0, -5.0, 5e-324, 1e-300, 1.0, 1e6, 1e300, np.inf, -np.inf, np.nan])
+    for noise, _ in itertools.product(NOISES, range(300)):
+        rates = np.concatenate([10 ** rng.uniform(-3, 8, size=int(rng.integers(1, 150))), edges])
+        t = float(rng.choice([float(10 ** rng.uniform(-6, 1)), 5e-324, 1e300, 0.0]))
+        frames = {t: int(rng.integers(1, 9))}
+        gain, darks = float(rng.choice([1.0, 2.5, 4.0, 1e-3])), int(rng.integers(0, 4))
+        sat = float(rng.choice([noise.saturation_dn(gain), 1e300, 0.0]))
+        with np.errstate(all="ignore"):
+            want = reference_merged_variance(rates, frames, noise, gain, darks, sat)
+            got = _merged_variance(rates, frames, noise, gain, darks, sat)
+        assert got.tobytes() == want.tobytes(), (t, frames, gain, darks, sat)
+
+
+@pytest.mark.parametrize("t", [1e-3, 1e-300, 1e300])
+def test_one_kind_merge_variance_warns_as_before(t: float) -> None:
+    import warnings
+
+    rates, frames, sat = np.array([1.0, 1e308, 50.0, np.nan]), {t: 2}, NOISES[0].saturation_dn(1.0)
+    caught = []
+    for variance in (reference_merged_variance, _merged_variance):
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            out = variance(rates, frames, NOISES[0], 1.0, 1, sat)
+        caught.append(([str(w.message) for w in seen], out.tobytes()))
+    assert caught[0] == caught[1]

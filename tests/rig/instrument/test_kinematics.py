@@ -256,3 +256,20 @@ def test_forward_rejects_joints_of_another_layout():
         forward(RigGeometry(layout="fixed_camera"), Joints(light=0.0, camera=0.0, tilt=0.0, roll=0.0))
     with pytest.raises(ValueError, match="unknown joint name"):
         Joints.from_dict({"light": 0.0, "elbow": 1.0})
+
+
+def test_joints_from_dict_knows_its_names() -> None:
+    import dataclasses
+
+    from rig.instrument.kinematics_types import Joints
+
+    assert Joints.from_dict({"light": 1.0, "roll": 2.0}) == Joints(1.0, roll=2.0)
+    known = r"\['camera', 'light', 'roll', 'tilt', 'yaw'\]"
+    with pytest.raises(ValueError, match=r"unknown joint name\(s\) \['pan'\]; joints are " + known):
+        Joints.from_dict({"light": 1.0, "pan": 2.0})
+
+    @dataclasses.dataclass(frozen=True)
+    class More(Joints):
+        pan: float | None = None
+
+    assert More.from_dict({"light": 1.0, "pan": 2.0}) == More(1.0, pan=2.0)

@@ -130,3 +130,61 @@ def test_a_hung_exposed_frame_times_out() -> None:
     with pytest.raises(CameraTimeout, match="refused"):
         camera.exposed_frames(0.01)
     inner.block.set()
+
+
+class ScriptedCamera(DarkCamera):
+    """A dark camera whose n-th set_exposure or dark frame answers as scripted (a wrong type, an error)."""
+
+    def __init__(self, bad_exposure: int | None = None, bad_dark: int | None = None, fail_dark: int | None = None):
+        super().__init__()
+        self.bad_exposure, self.bad_dark, self.fail_dark = bad_exposure, bad_dark, fail_dark
+        self.n_exposures = self.n_darks = 0
+
+    def set_exposure(self, exposure_s: float, gain: float | None = None) -> ExposureSettings:
+        self.n_exposures += 1
+        applied = super().set_exposure(exposure_s, gain)
+        return "no" if self.n_exposures == self.bad_exposure else applied  # type: ignore[return-value]
+
+    def capture_dark(self) -> Frame:
+        self.n_darks += 1
+        frame = super().capture_dark()
+        if self.n_darks == self.fail_dark:
+            raise OSError("the camera went away")
+        return "not a frame" if self.n_darks == self.bad_dark else frame  # type: ignore[return-value]
+
+
+def one_by_one(camera: BoundedCamera, requests: list[tuple[float, int]]) -> list[tuple[ExposureSettings, list[Frame]]]:
+    return [camera.exposed_frames(t, n, dark=True) for t, n in requests]
+
+
+def outcome(make: object, requests: list[tuple[float, int]], series: bool) -> tuple[object, list[str], int]:
+    inner = make()  # type: ignore[operator]
+    camera = BoundedCamera(inner)
+    submitted = 0
+    submit = camera._submit
+
+    def counting(job: object) -> None:
+        nonlocal submitted
+        submitted += 1
+        submit(job)  # type: ignore[arg-type]
+
+    camera._submit = counting  # type: ignore[method-assign]
+    try:
+        answers = camera.exposed_series(requests, dark=True) if series else one_by_one(camera, requests)
+        result: object = [(a.exposure_s, [f.data.sum() for f in frames]) for a, frames in answers]
+    except (CameraError, OSError) as exc:
+        result = (type(exc), str(exc))
+    finally:
+        camera.close()
+    return result, [c[0] for c in inner.calls], submitted
+
+
+@pytest.mark.parametrize("make", [ScriptedCamera, lambda: ScriptedCamera(bad_exposure=2),
+                                  lambda: ScriptedCamera(bad_exposure=1), lambda: ScriptedCamera(bad_dark=2),
+                                  lambda: ScriptedCamera(bad_dark=3), lambda: ScriptedCamera(fail_dark=2)])  # fmt: skip
+def test_exposed_series_makes_the_calls_of_one_exposure_at_a_time(make: object) -> None:
+    requests = [(0.01, 2), (0.04, 1), (0.1, 2)]
+    series, alone = outcome(make, requests, True), outcome(make, requests, False)
+    assert series[:2] == alone[:2]  # the same answers or errors, the same camera calls
+    # one hand-off for the series (and one for close), against one an exposure reached
+    assert series[2] == 2 and alone[2] == 1 + alone[1].count("set_exposure")

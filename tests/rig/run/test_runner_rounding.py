@@ -24,3 +24,22 @@ def test_rounding_matches_numpy_bit_for_bit() -> None:
     for v in values:
         assert repr(_f(v)) == repr(reference(v)), v
     assert repr(_f(np.float64(-0.0))) == "0.0" and _f(np.float32(0.1)) == reference(np.float32(0.1))
+
+
+def reference_as_list(a: object) -> list[object]:
+    return list(np.atleast_1d(a).tolist())
+
+
+def test_reading_lists_are_atleast_1d_lists() -> None:
+    from rig.run.runner import _as_list
+
+    def typed(v: object) -> object:
+        return [typed(x) for x in v] if isinstance(v, list) else (type(v).__name__, repr(v))
+
+    values: list[object] = [
+        np.float64(2.5).reshape(()), np.array(-0.0), np.array([1.0, np.nan, -np.inf]), np.array(5, np.int64),
+        np.array([3, 0, 7], dtype=np.int64), np.array([], dtype=np.float64), np.arange(6.0).reshape(2, 3),
+        np.array([True, False]), np.float32(0.1), 4.0, 3, [1.0, 2.0], (1, 2),
+    ]  # fmt: skip
+    for v in values:
+        assert typed(_as_list(v)) == typed(reference_as_list(v)), v

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from rig.run.store_formats import _named, jsonable
+from rig.run.store_formats import NotExactJson, _named, exact_json, jsonable
 
 
 class Colour(enum.IntEnum):
@@ -16,6 +16,10 @@ class Colour(enum.IntEnum):
 
 
 class Fancy(float):
+    pass
+
+
+class Name(str):
     pass
 
 
@@ -89,3 +93,73 @@ def test_csv_text_equals_the_reference() -> None:
         csv_text([{"a": 1.0, "b": 2.0}], ["a"])
     with pytest.raises(ValueError, match="expected a finite number"):
         csv_text([{"a": math.nan}])
+
+
+def random_record(rng: np.random.Generator, depth: int = 0) -> Any:
+    """A random nest of exact plain values: floats of every magnitude and sign, ints, strs, bools, None."""
+    roll = rng.integers(0, 9 if depth < 3 else 6)
+    if roll == 0:
+        return float(rng.choice([0.0, -0.0, 5e-324, -5e-324, -1.7976931348623157e308, 1.0 / 3.0, 2.0**53 + 2.0]))
+    if roll == 1:
+        return float(rng.normal() * 10.0 ** rng.integers(-300, 300))
+    if roll == 2:
+        return int(rng.integers(-(2**62), 2**62)) * int(rng.integers(1, 2**40))
+    if roll == 3:
+        return str(rng.choice(["", "a", "é\u2603", "\ud800", 'q"\\\n\t', "kind"]))
+    if roll == 4:
+        return bool(rng.integers(0, 2))
+    if roll == 5:
+        return None
+    if roll == 6:
+        return [random_record(rng, depth + 1) for _ in range(rng.integers(0, 4))]
+    if roll == 7:
+        return tuple(random_record(rng, depth + 1) for _ in range(rng.integers(0, 4)))
+    return {f"k{i}": random_record(rng, depth + 1) for i in range(rng.integers(0, 4))}
+
+
+def read_back(value: Any) -> Any:
+    """What the journal kept before: the line written, parsed again."""
+    return json.loads(json.dumps(jsonable(value, "record"), allow_nan=False, ensure_ascii=True, separators=(",", ":")))
+
+
+def test_exact_json_is_what_the_line_reads_back() -> None:
+    from rig.run.store import _encode_line
+
+    rng = np.random.default_rng(21)
+    for _ in range(2000):
+        record = {"kind": "point", "value": random_record(rng)}
+        kept = exact_json(record)
+        assert typed(kept) == typed(read_back(record))
+        assert repr(kept) == repr(read_back(record))  # -0.0 and 0.0 spelled apart
+        line = json.dumps(jsonable(record, "record"), allow_nan=False, ensure_ascii=True, separators=(",", ":"))
+        assert _encode_line(kept) == _encode_line(record) == line
+
+
+def test_exact_json_copies() -> None:
+    inner = [1.0, {"a": 2}]
+    record = {"kind": "point", "x": inner, "y": inner}
+    kept = exact_json(record)
+    assert kept == record and kept["x"] is not inner and kept["x"][1] is not inner[1] and kept["x"] is not kept["y"]
+
+
+@pytest.mark.parametrize("value", [np.float64(0.1), np.int64(3), np.bool_(True), np.arange(2.0), Colour.RED,
+                                   Fancy(2.5), math.nan, -math.inf, {1: 2.0}, {Name("a"): 1}, Name("b"), object(),
+                                   frozenset()])  # fmt: skip
+def test_exact_json_refuses_what_reads_back_as_another_type(value: Any) -> None:
+    with pytest.raises(NotExactJson):
+        exact_json({"kind": "point", "nested": [{"x": value}]})
+
+
+def test_the_journal_keeps_what_it_reads_back(tmp_path: Any) -> None:
+    from rig.run.store import RunStore
+
+    rng = np.random.default_rng(5)
+    store = RunStore.create(tmp_path / "run", {"what": "test"})
+    records = [{"kind": "point", "value": random_record(rng)} for _ in range(50)]
+    records += [{"kind": "event", "np": np.float64(0.5), "enum": Colour.RED, "fancy": Fancy(1.5), Name("k"): 1}]
+    for record in records:
+        store.append(record)
+    kept = store.records_to_read()
+    again = RunStore.read(tmp_path / "run").records_to_read()
+    assert [typed(r) for r in kept] == [typed(r) for r in again] == [typed(read_back(r)) for r in records]
+    store.close()

@@ -1,7 +1,9 @@
 """A short sweep on the simulated rig writes, record by record, the journal and table it wrote before issue 21.
 
-The controller's per-point work was made cheaper (scalar kinematics and rounding, a faster planner search,
-ROI shortcuts, one camera hand-off per exposure, a faster journal walk). Each shortcut has its own
+The controller's per-point work was made cheaper (scalar kinematics and rounding, a faster planner search and
+one-kind merge variance, ROI shortcuts, one camera hand-off per exposure and one for a point's darks, a faster
+journal walk, the journal's records kept rather than parsed again, the bracket check's settings and frames
+without dataclasses.replace, the reading's lists without atleast_1d). Each shortcut has its own
 bit-for-bit test; this one runs the same sweep twice, once as it is and once with every shortcut replaced
 by the implementation it replaced (kept in the tests), and compares what the two runs wrote.
 """
@@ -18,6 +20,7 @@ import pytest
 
 from acquisition.cfa import HdrImage
 from acquisition.roi import Box, RoiReading
+from rig.run import store_formats
 from rig.run.config import parse, rig_config, sweep_config
 from rig.run.config_schema import RigFile, SweepFile
 from rig.run.hardware import dynamixel_options
@@ -26,9 +29,16 @@ from rig.run.session import capture_settings, make_plan, manifest
 from rig.run.store import RunStore
 from simulator.from_config import spec_from
 from simulator.rig import SimulatedRig
-from tests.acquisition.test_exposure_oracle import oracle_min_snr, oracle_roi_snr, oracle_shortest
+from tests.acquisition.test_exposure_oracle import (
+    oracle_min_snr,
+    oracle_roi_snr,
+    oracle_shortest,
+    reference_merged_variance,
+)
+from tests.rig.run.test_check_shortcuts import reference_roi_check
 from tests.rig.run.test_reading_shortcuts import reference_level_of, reference_reduce_roi
 from tests.rig.run.test_runner_rounding import reference as reference_round
+from tests.rig.run.test_runner_rounding import reference_as_list
 
 
 def reference_reduce_hdr_roi(hdr: HdrImage, roi: Box, *, on_flagged: Any = "exclude") -> RoiReading:
@@ -56,6 +66,10 @@ def reference_darks(
     return darks, tuple(taken)
 
 
+def refuse_exact(value: Any) -> Any:
+    raise store_formats.NotExactJson
+
+
 def as_before(m: pytest.MonkeyPatch) -> None:
     """Every shortcut of issue 21 replaced by what it replaced."""
     import acquisition.exposure.plan as plan
@@ -63,20 +77,26 @@ def as_before(m: pytest.MonkeyPatch) -> None:
     import rig.instrument.kinematics as kinematics
     import rig.run.measure as measure
     import rig.run.runner as runner
+    import rig.run.store as store
     import rig.run.store_formats as store_formats
 
     m.setattr(plan, "_shortest", oracle_shortest)
     m.setattr(plan, "roi_snr", oracle_roi_snr)
     m.setattr(plan, "single_exposure_min_snr", oracle_min_snr)
+    m.setattr(snr, "_merged_variance", reference_merged_variance)
     m.setattr(snr, "_geomspace", lambda lo, hi, num: np.geomspace(lo, hi, num).tolist())
     m.setattr(measure, "reduce_hdr_roi", reference_reduce_hdr_roi)
     m.setattr(measure, "level_of", reference_level_of)
     m.setattr(measure, "_shoot", reference_shoot)
     m.setattr(measure, "_darks", reference_darks)
+    m.setattr(measure, "_roi_check", reference_roi_check)
     m.setattr(kinematics, "forward_one", lambda geometry, joints: None)
     m.setattr(runner, "_f", reference_round)
+    m.setattr(runner, "_as_list", reference_as_list)
     m.setattr(store_formats, "_plain_json", lambda value: store_formats._named(value, "record"))
     m.setattr(RunStore, "records_to_read", RunStore.records)
+    m.setattr(store, "exact_json", refuse_exact)  # every record by jsonable, its line parsed again
+    m.setattr(store, "_encode_line", lambda value: store._dumps(value, separators=(",", ":")))
 
 
 def sweep_run(where: Path) -> Path:
