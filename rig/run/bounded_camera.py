@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import queue
 import threading
+import time
 import weakref
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
@@ -47,6 +48,8 @@ class BoundedCamera:
         self.exposure_factor = float(exposure_factor)
         self._exposure_s = 0.0
         self._dead: str | None = None
+        # The camera call running now: its name, its exposure (s), when it started (monotonic s).
+        self._now: tuple[str, float, float] = ("", 0.0, 0.0)
         self._jobs: queue.SimpleQueue[Callable[[], None] | None] = queue.SimpleQueue()
         self._worker: threading.Thread | None = None
 
@@ -67,7 +70,6 @@ class BoundedCamera:
     def _call(self, what: str, call: Callable[[], T], exposure_s: float = 0.0) -> T:
         if self._dead is not None:
             raise CameraTimeout(f"{self._camera.identity}: {what} refused: {self._dead}")
-        deadline = self.slack_s + self.exposure_factor * exposure_s
         box: dict[str, Any] = {}
         # A plain lock, held until the worker releases it: half an Event's cost a call (no condition, no
         # waiter list), ~4 us of the controller's thread each of the ~5 calls a point.
@@ -82,16 +84,27 @@ class BoundedCamera:
             finally:
                 done.release()
 
+        self._now = (what, exposure_s, time.monotonic())
         self._submit(work)
-        if not done.acquire(timeout=min(deadline, threading.TIMEOUT_MAX)):
-            self._dead = f"an earlier call ({what}) did not return within {deadline:g} s"
-            raise CameraTimeout(
-                f"{self._camera.identity}: {what} did not return within {deadline:g} s (exposure {exposure_s:g} s "
-                f"+ {self.slack_s:g} s slack): the camera or its driver hangs; check its cable and power"
-            )
+        while True:
+            name, exposed_s, since = self._now  # one read: the worker may move it on meanwhile
+            deadline = self.slack_s + self.exposure_factor * exposed_s
+            left = since + deadline - time.monotonic()
+            if done.acquire(timeout=min(max(left, 0.0), threading.TIMEOUT_MAX)):
+                break
+            if self._now[2] == since:  # the same camera call is still running, past its deadline
+                self._dead = f"an earlier call ({name}) did not return within {deadline:g} s"
+                raise CameraTimeout(
+                    f"{self._camera.identity}: {name} did not return within {deadline:g} s (exposure {exposed_s:g} "
+                    f"s + {self.slack_s:g} s slack): the camera or its driver hangs; check its cable and power"
+                )
         if "error" in box:
             raise box["error"]
         return box["value"]
+
+    def _step(self, what: str, exposure_s: float = 0.0) -> None:
+        """The worker starts the next camera call of a batch: it gets a deadline of its own (exposure in s)."""
+        self._now = (what, exposure_s, time.monotonic())
 
     def set_exposure(self, exposure_s: float, gain: float | None = None) -> ExposureSettings:
         """Set the exposure (s); returns what the camera applied."""
@@ -112,7 +125,7 @@ class BoundedCamera:
 
         The same camera calls as ``set_exposure`` then ``capture`` (or ``capture_dark``) each time, in one
         hand-off to the worker instead of 1 + ``frames``: each wake-up of the waiting thread cost the controller
-        ~30 us in a sweep. The deadline is the slack plus ``exposure_factor`` times the frames' requested exposure.
+        ~30 us in a sweep. Each of those calls keeps its own deadline, as if made one at a time.
         """
         take = self._camera.capture_dark if dark else self._camera.capture  # type: ignore[attr-defined]
         what = "capture_dark" if dark else "capture"
@@ -122,9 +135,9 @@ class BoundedCamera:
             if not isinstance(applied, ExposureSettings):
                 return applied, []  # refused below, before any frame is taken (as set_exposure does)
             self._exposure_s = float(applied.exposure_s)
-            return applied, [take() for _ in range(frames)]
+            return applied, [self._take(take, what, i, frames) for i in range(frames)]
 
-        applied, taken = self._call(f"set_exposure and {frames} {what}", work, frames * exposure_s)
+        applied, taken = self._call("set_exposure", work)
         if not isinstance(applied, ExposureSettings):
             raise CameraError(f"{self._camera.identity}: set_exposure returned {applied!r}, not ExposureSettings")
         for frame in taken:
@@ -140,27 +153,28 @@ class BoundedCamera:
         The same camera calls in the same order, stopping where the sequence of calls would have stopped
         (a wrong answer to set_exposure, a capture that is not a Frame, an exception), and the same errors.
         A point's darks at two exposures took two hand-offs (~36 us of the controller each in the sweep).
-        The deadline is the slack plus ``exposure_factor`` times all the frames' requested exposure.
+        Each of those calls keeps its own deadline, as if made one at a time.
         """
         take = self._camera.capture_dark if dark else self._camera.capture  # type: ignore[attr-defined]
         what = "capture_dark" if dark else "capture"
 
         def work() -> list[tuple[object, list[object]]]:
             done: list[tuple[object, list[object]]] = []
-            for exposure_s, frames in requests:
+            for k, (exposure_s, frames) in enumerate(requests):
+                if k:
+                    self._step("set_exposure")
                 applied = self._camera.set_exposure(exposure_s, None)
                 if not isinstance(applied, ExposureSettings):
                     done.append((applied, []))
                     break
                 self._exposure_s = float(applied.exposure_s)
-                taken = [take() for _ in range(frames)]
+                taken = [self._take(take, what, i, frames) for i in range(frames)]
                 done.append((applied, taken))
                 if not all(isinstance(frame, Frame) for frame in taken):
                     break
             return done
 
-        total_s = sum(frames * exposure_s for exposure_s, frames in requests)
-        answers = self._call(f"{len(requests)} exposures' {what}", work, total_s)
+        answers = self._call("set_exposure", work)
         for applied, taken in answers:
             if not isinstance(applied, ExposureSettings):
                 raise CameraError(f"{self._camera.identity}: set_exposure returned {applied!r}, not ExposureSettings")
@@ -168,6 +182,11 @@ class BoundedCamera:
                 if not isinstance(frame, Frame):
                     raise CameraError(f"{self._camera.identity}: {what} returned {frame!r} instead of a Frame")
         return answers  # type: ignore[return-value]
+
+    def _take(self, take: Callable[[], object], what: str, i: int, frames: int) -> object:
+        """Frame ``i`` of ``frames`` of a batch, on the worker, under a deadline of its own."""
+        self._step(f"{what} {i + 1} of {frames}" if frames > 1 else what, self._exposure_s)
+        return take()
 
     def __getattr__(self, name: str) -> Any:
         # capture_dark exists only where the wrapped camera has it (the runner asks with getattr).

@@ -132,6 +132,43 @@ def test_a_hung_exposed_frame_times_out() -> None:
     inner.block.set()
 
 
+class SlowCamera(RecordingCamera):
+    """A camera whose every capture takes ``capture_s`` of wall time, and whose n-th capture hangs."""
+
+    def __init__(self, capture_s: float, hang_at: int | None = None) -> None:
+        super().__init__()
+        self.capture_s, self.hang_at = capture_s, hang_at
+
+    def capture(self) -> Frame:
+        self.calls.append(("capture", threading.get_ident()))
+        if sum(c[0] == "capture" for c in self.calls) == self.hang_at:
+            self.block.clear()
+            self.block.wait()
+        threading.Event().wait(self.capture_s)  # the camera's own time, not a test waiting on it
+        return Frame(np.zeros((2, 2)), "linear", 0.01)
+
+
+def test_each_call_of_a_batch_keeps_its_own_deadline() -> None:
+    # Three captures of 1 s each under a 2 s slack: one at a time each is well within its deadline, so a batch of
+    # them must be too (a deadline for the batch as a whole would end it at 2 s, in the second capture).
+    camera = BoundedCamera(SlowCamera(1.0), slack_s=2.0, exposure_factor=0.0)
+    applied, frames = camera.exposed_frames(0.01, 3)
+    assert applied.exposure_s == 0.01 and len(frames) == 3
+    answers = camera.exposed_series([(0.01, 2), (0.02, 1)])
+    assert [len(taken) for _, taken in answers] == [2, 1]
+    camera.close()
+
+
+def test_a_hung_call_inside_a_batch_is_named() -> None:
+    inner = SlowCamera(0.0, hang_at=2)
+    camera = BoundedCamera(inner, slack_s=0.2, exposure_factor=0.0)
+    with pytest.raises(CameraTimeout, match=r"capture 2 of 3 did not return within 0\.2 s"):
+        camera.exposed_frames(0.01, 3)
+    with pytest.raises(CameraTimeout, match=r"refused: an earlier call \(capture 2 of 3\)"):
+        camera.exposed_frames(0.01)
+    inner.block.set()
+
+
 class ScriptedCamera(DarkCamera):
     """A dark camera whose n-th set_exposure or dark frame answers as scripted (a wrong type, an error)."""
 
