@@ -82,10 +82,11 @@ def _export_modules() -> None:
     # Mitsuba's import and its variant's first load (about 0.45 CPU s) need no fit; an export that cannot load
     # Mitsuba fails the same way when it runs, so nothing is raised here.
     with contextlib.suppress(Exception):
-        import analysis.export  # noqa: F401  (Mitsuba, drjit)
+        from analysis.export import prepare_exports  # Mitsuba, drjit
         from model.mitsuba.variant import pick_variant
 
         pick_variant()
+        prepare_exports()
 
 
 def _analyze(args: argparse.Namespace) -> int:

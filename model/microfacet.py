@@ -171,10 +171,8 @@ def distribution_d(kind: str, cos_h: Array, alpha: npt.ArrayLike) -> Array:
     raise ValueError(f"unknown distribution {kind!r}; expected one of {DISTRIBUTIONS}")
 
 
-def sample_half_vector(
-    kind: str, alpha: float, u1: Array, u2: Array
-) -> tuple[Array, Array]:
-    """Sample h with density D(h) cos(theta_h) from uniform numbers u1, u2; returns (h, pdf_h in 1/sr)."""
+def half_vectors(kind: str, alpha: float, u1: Array, u2: Array) -> tuple[Array, Array]:
+    """The half vectors h (N, 3) :func:`sample_half_vector` draws from u1, u2, and their cos(theta_h) (no pdf)."""
     a = max(float(alpha), ALPHA_MIN)
     if kind == "ggx":
         cos_t = 1.0 / np.sqrt(1.0 + a * a * u1 / np.maximum(1.0 - u1, 1e-300))
@@ -187,6 +185,13 @@ def sample_half_vector(
         raise ValueError(f"unknown distribution {kind!r}; expected one of {DISTRIBUTIONS}")
     sin_t = np.sqrt(np.maximum(0.0, 1.0 - cos_t * cos_t))
     phi = 2.0 * math.pi * u2
-    h = np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t], axis=-1)
-    pdf = distribution_d(kind, cos_t, a) * cos_t
-    return h, pdf
+    return np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t], axis=-1), cos_t
+
+
+def sample_half_vector(
+    kind: str, alpha: float, u1: Array, u2: Array
+) -> tuple[Array, Array]:
+    """Sample h with density D(h) cos(theta_h) from uniform numbers u1, u2; returns (h, pdf_h in 1/sr)."""
+    h, cos_t = half_vectors(kind, alpha, u1, u2)
+    a = max(float(alpha), ALPHA_MIN)
+    return h, distribution_d(kind, cos_t, a) * cos_t

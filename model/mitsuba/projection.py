@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -96,8 +97,12 @@ class NativeProjection:
         )
 
 
+@functools.cache
 def grid_pairs(phi_i_deg: tuple[float, ...] = GRID_PHI_I_DEG) -> tuple[Array, Array]:
-    """The error grid (wi, wo), each (N, 3), float32-rounded as Mitsuba sees them; phi_i slowest."""
+    """The error grid (wi, wo), each (N, 3), float32-rounded as Mitsuba sees them; phi_i slowest (read-only).
+
+    Built once per process (every stock form's error is taken on it): an export standby builds it before the fit.
+    """
     ti, to, dphi = np.meshgrid(np.radians(GRID_THETA_DEG), np.radians(GRID_THETA_DEG), np.radians(GRID_DPHI_DEG),
                                indexing="ij")  # fmt: skip
     wi, wo = [], []
@@ -105,7 +110,14 @@ def grid_pairs(phi_i_deg: tuple[float, ...] = GRID_PHI_I_DEG) -> tuple[Array, Ar
         wi.append(spherical_to_vector(ti.ravel(), np.full(ti.size, phi)))
         wo.append(spherical_to_vector(to.ravel(), phi + dphi.ravel()))
     f32 = np.float32
-    return np.concatenate(wi).astype(f32).astype(np.float64), np.concatenate(wo).astype(f32).astype(np.float64)
+    return (_frozen(np.concatenate(wi).astype(f32).astype(np.float64)),
+            _frozen(np.concatenate(wo).astype(f32).astype(np.float64)))  # fmt: skip
+
+
+def _frozen(a: Array) -> Array:
+    """``a`` made read-only: a cached array handed to every caller must not be changed by one."""
+    a.setflags(write=False)
+    return a
 
 
 def mitsuba_values(bsdf: dict[str, Any], wi: Array, wo: Array, variant: str | None = None) -> Array:
@@ -215,8 +227,15 @@ def warm_start(spec: FitSpec, source: BRDF) -> FitSpec | None:
     return dataclasses.replace(spec, params=tuple(params))
 
 
-def _fit_family(spec: FitSpec, source: BRDF, seed: int) -> BRDF:
+@functools.lru_cache(maxsize=4)
+def fit_pairs(seed: int = 0) -> tuple[Array, Array, Array]:
+    """The FIT_SAMPLES pairs (wi, wo, weight) a projection is fitted to (read-only; they depend on no model)."""
     wi, wo, w = sample_pairs(FIT_SAMPLES, np.random.default_rng(seed))
+    return _frozen(wi), _frozen(wo), _frozen(w)
+
+
+def _fit_family(spec: FitSpec, source: BRDF, seed: int) -> BRDF:
+    wi, wo, w = fit_pairs(seed)
     f = _values(source, wi, wo)
     # Importance weights as std errors, as model.fit.metal_roughness does (their chi2 means nothing).
     se = np.broadcast_to(1.0 / np.sqrt(w / w.mean())[:, None], f.shape)

@@ -51,6 +51,7 @@ azimuth step (17 azimuths), 13.4 MB; :attr:`Tabulated.size_bytes` says the exact
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import tempfile
@@ -65,7 +66,7 @@ import numpy as np
 import numpy.typing as npt
 
 from model.base import BRDF
-from model.mitsuba.projection import grid_error
+from model.mitsuba.projection import GRID_PHI_I_DEG, grid_error, grid_pairs, mitsuba_values
 from model.mitsuba.tensor_file import tensor_bytes
 from model.mitsuba.variant import pick_variant, use_variant
 from model.serialize import to_json_dict
@@ -209,27 +210,53 @@ def symmetry(model: BRDF, pairs: int = 512, seed: int = 0) -> int:
 
 @dataclass(frozen=True)
 class _Square:
-    """The n x n nodes of the unit square (rows: u_y, phi; columns: u_x, theta) and their quadrature weights."""
+    """The n x n nodes of the unit square (rows: u_y, phi; columns: u_x, theta) and their quadrature weights.
+
+    Each is computed once (the NDF's power iterations read them a dozen times): use :func:`_square`, which
+    keeps one per n for the process, so an export standby can build them before the fit.
+    """
 
     n: int
 
-    @property
+    @functools.cached_property
     def u(self) -> tuple[Array, Array]:
         ux, uy = np.meshgrid(np.linspace(0.0, 1.0, self.n), np.linspace(0.0, 1.0, self.n))
-        return ux, uy
+        return _frozen(ux), _frozen(uy)
 
-    @property
+    @functools.cached_property
     def m(self) -> Array:
         ux, uy = self.u
-        return _sph(_u2theta(ux), _u2phi(uy))
+        return _frozen(_sph(_u2theta(ux), _u2phi(uy)))
 
-    @property
+    @functools.cached_property
+    def flat_m(self) -> Array:
+        """``m`` as (n^2, 3)."""
+        return self.m.reshape(-1, 3)
+
+    @functools.cached_property
     def weights(self) -> Array:
         """Solid angle per node: trapezoid in u times d(omega)/du = 2 pi^2 u_x sin(theta)."""
         t = np.full(self.n, 1.0 / (self.n - 1))
         t[[0, -1]] *= 0.5
         ux, _ = self.u
-        return np.asarray(np.outer(t, t) * 2.0 * np.pi**2 * ux * np.sin(_u2theta(ux)))
+        return _frozen(np.asarray(np.outer(t, t) * 2.0 * np.pi**2 * ux * np.sin(_u2theta(ux))))
+
+
+def _frozen(a: Array) -> Array:
+    a.setflags(write=False)  # shared by every tabulation in the process: no caller may change it
+    return a
+
+
+@functools.lru_cache(maxsize=4)
+def _square(n: int) -> _Square:
+    """The n x n square, shared by every tabulation at that resolution."""
+    return _Square(n)
+
+
+def prepare_tabulation(grid: TabulationGrid | None = None) -> None:
+    """Build what :func:`tabulate` needs at ``grid`` that depends on no model (the unit square's nodes)."""
+    sq = _square((grid or TabulationGrid()).ndf)
+    _ = sq.flat_m, sq.weights
 
 
 def _sigma(d: Array, sq: _Square, w: Array, isotropic: bool = False) -> Array:
@@ -240,7 +267,7 @@ def _sigma(d: Array, sq: _Square, w: Array, isotropic: bool = False) -> Array:
     """
     if isotropic:
         return np.broadcast_to(_sigma(d, sq, w[:1]), w.shape[:-1]).copy()
-    m, q = sq.m.reshape(-1, 3), (sq.weights * d).ravel()
+    m, q = sq.flat_m, (sq.weights * d).ravel()
     flat = w.reshape(-1, 3)
     out = np.concatenate([np.maximum(flat[i : i + 256] @ m.T, 0.0) @ q for i in range(0, len(flat), 256)])
     return out.reshape(w.shape[:-1])
@@ -252,7 +279,7 @@ def _normalise(d: Array, sq: _Square) -> Array:
 
 def retro_ndf(model: BRDF, n: int, isotropic: bool) -> tuple[Array, Array]:
     """The NDF (n x n over the unit square, normalised: integral of D cos = 1) and sigma at the same nodes."""
-    sq = _Square(n)
+    sq = _square(n)
     ux, _ = sq.u
     theta = np.minimum(_u2theta(ux), THETA_EVAL_MAX)
     w = _sph(theta, _u2phi(sq.u[1]))
@@ -310,7 +337,7 @@ def tabulate(model: BRDF, grid: TabulationGrid | None = None, *, variant: str | 
     name = type(model).__name__
     sym = symmetry(model)
     ndf, sigma = retro_ndf(model, grid.ndf, sym == 0)
-    sq = _Square(grid.ndf)
+    sq = _square(grid.ndf)
     theta_i = np.linspace(0.0, np.pi / 2.0, grid.theta_i)
     phi_i = _phi_nodes(sym == 0, grid.phi_i)
     s = grid.samples
@@ -375,3 +402,30 @@ def tabulated_error(model: BRDF, table: Tabulated, variant: str | None = None) -
     with tempfile.TemporaryDirectory(prefix="gonio-bsdf-") as tmp:
         path = table.write(Path(tmp) / "material.bsdf")
         return grid_error(model, measured_bsdf(str(path)), variant, isotropic=table.isotropic)
+
+
+#: What :func:`warm_up` tabulates: a glossy isotropic model on the smallest grid, so every Mitsuba object and kernel
+#: a tabulation and its error use is built once, at little cost (its values are thrown away).
+WARM_UP_GRID = TabulationGrid(samples=4, theta_i=2, phi_i=2, ndf=8)
+
+
+def warm_up(variant: str | None = None) -> None:
+    """Build once what Mitsuba builds at the first stock form of a process (plugins, warps, JIT kernels).
+
+    For a process that will export a model it does not know yet (``gonio analyze``'s export standby, during the
+    fit): the first tabulation and the first evaluations of a BSDF cost about 40 ms of CPU more than the later ones.
+    """
+    from model.cook_torrance import CookTorrance
+
+    name = variant or pick_variant("rgb")
+    glossy = CookTorrance(alpha=0.3, fresnel="schlick", f0=0.5, rho_d=0.1)
+    table = tabulate(glossy, WARM_UP_GRID, variant=name)
+    wi, wo = (a[:64] for a in grid_pairs(GRID_PHI_I_DEG[:1]))
+    with tempfile.TemporaryDirectory(prefix="gonio-bsdf-") as tmp:
+        path = table.write(Path(tmp) / "material.bsdf")
+        mitsuba_values(measured_bsdf(str(path)), wi, wo, name)
+    from model.mitsuba.materials import to_mitsuba
+
+    # The family every projection lands in (diffuse + GGX conductor: a blendbsdf), native as it is.
+    family = CookTorrance(alpha=0.3, fresnel="conductor", eta=(0.2, 0.4, 1.6), k=(2.2, 2.3, 1.9), rho_d=0.1)
+    mitsuba_values(to_mitsuba(family).bsdf, wi, wo, name)

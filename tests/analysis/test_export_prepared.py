@@ -1,0 +1,86 @@
+"""What an export standby computes before the fit (analysis.export.prepare_exports) changes no byte of the exports.
+
+The shared draws (the albedo's uniform numbers, directions and half vectors; the projections' seeded pairs; the
+error grid; the tabulation's square) are the arrays the exports computed for themselves before, now made once per
+process and read-only: the same bits, whichever process made them and whether or not it made them early.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from analysis.export import ALBEDO_EVALS, export_material, prepare_exports
+from model import CookTorrance
+from model import integrate as integrate_module
+from model import microfacet
+from model.fit import metal_roughness
+from model.fit.metal_roughness import ERROR_SAMPLES, FIT_SAMPLES, sample_pairs
+from model.geometry import spherical_to_vector
+from model.integrate import directional_albedo
+from model.mitsuba import projection, tabulated
+
+GLOSSY = CookTorrance(alpha=0.2, fresnel="schlick", f0=(0.9, 0.7, 0.4), rho_d=(0.01, 0.02, 0.0))
+
+
+def _forget() -> None:
+    """Drop every process-wide cache the exports share, as in a new process."""
+    projection.grid_pairs.cache_clear()
+    projection.fit_pairs.cache_clear()
+    metal_roughness.seeded_pairs.cache_clear()
+    integrate_module._draws.cache_clear()
+    tabulated._square.cache_clear()
+
+
+def _files(d: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(d.iterdir())}
+
+
+def test_exports_are_the_same_bytes_prepared_or_not(tmp_path: Path) -> None:
+    _forget()
+    export_material(GLOSSY, tmp_path / "cold")
+    _forget()
+    prepare_exports()
+    export_material(GLOSSY, tmp_path / "prepared")
+    export_material(GLOSSY, tmp_path / "again")  # the half vectors kept from the export before
+    cold = _files(tmp_path / "cold")
+    assert "material.bsdf" in cold and "material.json" in cold
+    assert _files(tmp_path / "prepared") == cold
+    assert _files(tmp_path / "again") == cold
+
+
+@pytest.mark.parametrize("model", [GLOSSY, CookTorrance(alpha=0.05, fresnel="conductor", eta=0.2, k=3.0)])
+def test_a_seeded_albedo_is_bit_identical_to_the_one_drawn_afresh(model: CookTorrance) -> None:
+    # rng=0 goes through the shared draws, a Generator through draws of its own: the same numbers, the same bits.
+    for theta in (0.0, 60.0, 85.0):
+        wi = spherical_to_vector(np.radians(theta), 0.0)
+        shared = directional_albedo(model, wi, n=ALBEDO_EVALS, method="mc", rng=0)
+        fresh = directional_albedo(model, wi, n=ALBEDO_EVALS, method="mc", rng=np.random.default_rng(0))
+        assert np.array_equal(shared.value, fresh.value) and np.array_equal(shared.stderr, fresh.stderr)
+
+
+def test_half_vectors_are_the_sampled_ones() -> None:
+    u1, u2 = np.random.default_rng(3).random((2, 1000))
+    for kind in ("ggx", "beckmann", "blinn_phong"):
+        h, pdf = microfacet.sample_half_vector(kind, 0.3, u1, u2)
+        h2, cos_t = microfacet.half_vectors(kind, 0.3, u1, u2)
+        assert np.array_equal(h, h2) and np.array_equal(cos_t, h[:, 2])
+        assert np.all(pdf > 0)
+
+
+def test_shared_pairs_are_the_ones_each_call_drew_and_cannot_be_changed() -> None:
+    fit_rng, error_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(0).spawn(2))
+    (wi, wo, w), (ei, eo, ew) = metal_roughness.seeded_pairs(FIT_SAMPLES, 0)
+    for got, want in zip((wi, wo, w, ei, eo, ew),
+                         (*sample_pairs(FIT_SAMPLES, fit_rng), *sample_pairs(ERROR_SAMPLES, error_rng)),
+                         strict=True):  # fmt: skip
+        assert np.array_equal(got, want)
+        with pytest.raises(ValueError):
+            got[0] = 0.0
+    pi, po, pw = projection.fit_pairs(0)
+    for got, want in zip((pi, po, pw), sample_pairs(projection.FIT_SAMPLES, np.random.default_rng(0)), strict=True):
+        assert np.array_equal(got, want)
+    with pytest.raises(ValueError):
+        projection.grid_pairs()[0][0, 0] = 1.0
