@@ -13,9 +13,8 @@ import numpy as np
 import pytest
 
 from analysis.export import ALBEDO_EVALS, export_material, prepare_exports
-from model import CookTorrance
+from model import CookTorrance, microfacet
 from model import integrate as integrate_module
-from model import microfacet
 from model.fit import metal_roughness
 from model.fit.metal_roughness import ERROR_SAMPLES, FIT_SAMPLES, sample_pairs
 from model.geometry import spherical_to_vector
