@@ -149,6 +149,20 @@ def _values(model: BRDF, wi: Array, wo: Array) -> Array:
     return np.asarray(model.eval(wi, wo), dtype=np.float64).reshape(len(wi), -1)
 
 
+def _grid_values(model: BRDF) -> Array:
+    """The model's values on the whole error grid (read-only): an export takes them three times."""
+    try:
+        return _kept_grid_values(model)  # type: ignore[arg-type]
+    except TypeError:  # a model that does not hash (a table of arrays) is evaluated each time
+        return _values(model, *grid_pairs())
+
+
+@functools.lru_cache(maxsize=2)
+def _kept_grid_values(model: BRDF) -> Array:
+    # Keyed by the model's value (frozen dataclasses hash their fields): equal models have equal values.
+    return _frozen(_values(model, *grid_pairs()))
+
+
 def _rms(g: Array, f: Array, w: Array) -> tuple[float, list[float]]:
     d2, f2 = np.sum(w[:, None] * (g - f) ** 2, axis=0), np.sum(w[:, None] * f**2, axis=0)
     return float(np.sqrt(d2.sum() / max(f2.sum(), 1e-300))), [float(x) for x in np.sqrt(d2 / np.maximum(f2, 1e-300))]
@@ -165,7 +179,7 @@ def grid_error(
     """
     name = variant or pick_variant("rgb")
     wi, wo = grid_pairs()
-    f = _values(source, wi, wo)
+    f = _grid_values(source)
     if isotropic:
         slice_wi, slice_wo = grid_pairs(GRID_PHI_I_DEG[:1])
         g = np.tile(mitsuba_values(bsdf, slice_wi, slice_wo, name), (len(GRID_PHI_I_DEG), 1))
@@ -251,7 +265,7 @@ def native_projection(model: BRDF, *, seed: int = 0, variant: str | None = None)
     mat = to_mitsuba(model)
     if mat.native:
         return NativeProjection(model, model, mat, True, grid_error(model, mat.bsdf, variant))
-    f = _values(model, *grid_pairs())
+    f = _grid_values(model)
     if not np.all(np.isfinite(f)) or not np.any(f > 0):
         raise ValueError(f"{type(model).__name__}: values not finite or all zero on the grid; nothing to project")
     for spec in FAMILIES:

@@ -28,6 +28,7 @@ def _forget() -> None:
     """Drop every process-wide cache the exports share, as in a new process."""
     projection.grid_pairs.cache_clear()
     projection.fit_pairs.cache_clear()
+    projection._kept_grid_values.cache_clear()
     metal_roughness.seeded_pairs.cache_clear()
     integrate_module._draws.cache_clear()
     tabulated._square.cache_clear()
