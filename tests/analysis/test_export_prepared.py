@@ -7,19 +7,26 @@ process and read-only: the same bits, whichever process made them and whether or
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
+import cloudpickle
 import numpy as np
 import pytest
 
+from analysis.analyze import write_report
 from analysis.export import ALBEDO_EVALS, export_material, prepare_exports
+from analysis.result import Analysis
 from model import CookTorrance, microfacet
 from model import integrate as integrate_module
 from model.fit import metal_roughness
 from model.fit.metal_roughness import ERROR_SAMPLES, FIT_SAMPLES, sample_pairs
+from model.fit.spec import ggx_conductor
 from model.geometry import spherical_to_vector
 from model.integrate import directional_albedo
 from model.mitsuba import projection, tabulated
+from tests.analysis.test_report_honesty import analysis_of, in_plane
 
 GLOSSY = CookTorrance(alpha=0.2, fresnel="schlick", f0=(0.9, 0.7, 0.4), rho_d=(0.01, 0.02, 0.0))
 
@@ -84,3 +91,31 @@ def test_shared_pairs_are_the_ones_each_call_drew_and_cannot_be_changed() -> Non
         assert np.array_equal(got, want)
     with pytest.raises(ValueError):
         projection.grid_pairs()[0][0, 0] = 1.0
+
+
+class _Handed:
+    """A stand-in for a forked Standby: keeps what it is handed and runs it here when asked."""
+
+    forked = True
+
+    def __init__(self) -> None:
+        self.calls: list[Callable[[], Any]] = []
+
+    def run(self, fn: Callable[[], Any]) -> None:
+        self.calls.append(fn)
+
+    def result(self) -> Any:
+        return self.calls[-1]()
+
+
+def test_the_export_standby_is_handed_the_chosen_model_not_the_analysis(tmp_path: Path) -> None:
+    # Pickled into the standby: an Analysis of a MERL source is 39 MB (its table rides along as the reference).
+    truth = CookTorrance(alpha=0.3, fresnel="conductor", eta=(0.2, 0.4, 1.5), k=(3.4, 2.4, 1.9))
+    a = analysis_of(in_plane(truth), [ggx_conductor()], truth=truth)
+    figures, exports = _Handed(), _Handed()
+    index = write_report(a, tmp_path, jobs=2, standby=figures, exporter=exports)  # type: ignore[arg-type]
+    (job,) = exports.calls
+    held = [c.cell_contents for c in job.__closure__ or ()]
+    assert a.selection.chosen.model in held and not any(isinstance(v, Analysis) for v in held)
+    assert len(cloudpickle.dumps(job)) < len(cloudpickle.dumps(a.selection.chosen.model)) + 2000  # not the samples
+    assert (tmp_path / "export" / "material.json").is_file() and "material.json" in index.read_text()
