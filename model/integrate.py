@@ -97,7 +97,7 @@ class _Draws:
 
     def __init__(self, u: Array) -> None:
         self.u = u
-        self._half: dict[tuple[str, float], Array] = {}
+        self._half: tuple[tuple[str, float], Array] | None = None  # the last lobe's only: a batch sees many
 
     @functools.cached_property
     def cosine(self) -> Array:
@@ -107,9 +107,9 @@ class _Draws:
     def half(self, kind: str, alpha: float) -> Array:
         """Half vectors (n, 3) of the ``kind`` lobe at ``alpha`` (as microfacet.sample_half_vector draws them)."""
         key = (kind, alpha)
-        if key not in self._half:
-            self._half[key] = microfacet.half_vectors(kind, alpha, self.u[:, 0], self.u[:, 1])[0]
-        return self._half[key]
+        if self._half is None or self._half[0] != key:
+            self._half = key, microfacet.half_vectors(kind, alpha, self.u[:, 0], self.u[:, 1])[0]
+        return self._half[1]
 
 
 @functools.lru_cache(maxsize=2)

@@ -97,7 +97,7 @@ class NativeProjection:
         )
 
 
-@functools.cache
+@functools.lru_cache(maxsize=4)
 def grid_pairs(phi_i_deg: tuple[float, ...] = GRID_PHI_I_DEG) -> tuple[Array, Array]:
     """The error grid (wi, wo), each (N, 3), float32-rounded as Mitsuba sees them; phi_i slowest (read-only).
 

@@ -119,3 +119,12 @@ def test_the_export_standby_is_handed_the_chosen_model_not_the_analysis(tmp_path
     assert a.selection.chosen.model in held and not any(isinstance(v, Analysis) for v in held)
     assert len(cloudpickle.dumps(job)) < len(cloudpickle.dumps(a.selection.chosen.model)) + 2000  # not the samples
     assert (tmp_path / "export" / "material.json").is_file() and "material.json" in index.read_text()
+
+
+def test_albedos_of_models_taken_in_turn_keep_their_own_half_vectors() -> None:
+    other = CookTorrance(alpha=0.05, fresnel="conductor", eta=0.2, k=3.0)
+    wi = spherical_to_vector(np.radians(30.0), 0.0)
+    fresh = {m: directional_albedo(m, wi, n=4096, method="mc", rng=np.random.default_rng(1)) for m in (GLOSSY, other)}
+    want = {m: est.value for m, est in fresh.items()}
+    for m in (GLOSSY, other, GLOSSY, other):
+        assert np.array_equal(directional_albedo(m, wi, n=4096, method="mc", rng=1).value, want[m])
