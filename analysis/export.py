@@ -67,7 +67,8 @@ from model.integrate import directional_albedo, prepare_albedo
 from model.merl import MerlTable, write_merl
 from model.mitsuba.materials import to_mitsuba
 from model.mitsuba.projection import GRID_PHI_I_DEG, NativeProjection, fit_pairs, grid_pairs, native_projection
-from model.mitsuba.tabulated import TabulationGrid, measured_bsdf, prepare_tabulation, warm_up
+from model.mitsuba.tabulated import TabulationGrid, measured_bsdf, prepare_tabulation
+from model.mitsuba.warm import warm_up
 from model.serialize import to_json_dict
 from model.version import gonio_version
 
@@ -154,7 +155,7 @@ def material_facts(
 def prepare_exports() -> None:
     """Compute what :func:`export_material` needs that depends on no model: the seeded direction pairs of the
     projections and the albedo, the error grid, the tabulation's unit square, and Mitsuba's first-use costs
-    (:func:`model.mitsuba.tabulated.warm_up`).
+    (:func:`model.mitsuba.warm.warm_up`).
 
     ``gonio analyze``'s export standby calls it while the fit runs; the exports then take the same arrays (cached
     in their modules, read-only), so the files are the same bytes with or without it.
