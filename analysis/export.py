@@ -60,19 +60,21 @@ from analysis.export_mitsuba import (
 )
 from analysis.export_stock import SELF_CONTAINED_RMS, STOCK_FORMS, StockForms, stock_forms, tabulated_facts
 from model.base import BRDF
+from model.fit import metal_roughness
 from model.fit.metal_roughness import GRAZING_DEG, MetalRoughnessFit, gltf_material, to_metal_roughness
 from model.geometry import spherical_to_vector
-from model.integrate import directional_albedo
+from model.integrate import directional_albedo, prepare_albedo
 from model.merl import MerlTable, write_merl
 from model.mitsuba.materials import to_mitsuba
-from model.mitsuba.projection import NativeProjection, native_projection
-from model.mitsuba.tabulated import TabulationGrid, measured_bsdf
+from model.mitsuba.projection import GRID_PHI_I_DEG, NativeProjection, fit_pairs, grid_pairs, native_projection
+from model.mitsuba.tabulated import TabulationGrid, measured_bsdf, prepare_tabulation
+from model.mitsuba.warm import warm_up
 from model.serialize import to_json_dict
 from model.version import gonio_version
 
 __all__ = [
     "FILES", "STOCK_FORMS", "XML_VERSION", "StockForms", "export_material", "export_notes", "material_facts",
-    "mitsuba_dict", "mitsuba_xml", "stock_forms",
+    "mitsuba_dict", "mitsuba_xml", "prepare_exports", "stock_forms",
 ]  # fmt: skip
 
 #: File name of each export, by the kind :func:`export_material` returns it under.
@@ -148,6 +150,23 @@ def material_facts(
         facts["mitsuba_projection"] = proj
         facts["mitsuba_tabulated"] = tabulated_facts(forms)
     return facts
+
+
+def prepare_exports() -> None:
+    """Compute what :func:`export_material` needs that depends on no model: the seeded direction pairs of the
+    projections and the albedo, the error grid, the tabulation's unit square, and Mitsuba's first-use costs
+    (:func:`model.mitsuba.warm.warm_up`).
+
+    ``gonio analyze``'s export standby calls it while the fit runs; the exports then take the same arrays (cached
+    in their modules, read-only), so the files are the same bytes with or without it.
+    """
+    grid_pairs()
+    grid_pairs(GRID_PHI_I_DEG[:1])
+    fit_pairs()
+    metal_roughness.seeded_pairs(metal_roughness.FIT_SAMPLES, 0)
+    prepare_albedo(ALBEDO_EVALS, 0)
+    prepare_tabulation()
+    warm_up()
 
 
 def _write_text(path: Path, text: str) -> None:

@@ -18,6 +18,7 @@ from typing import ClassVar, Protocol, runtime_checkable
 import numpy as np
 import numpy.typing as npt
 
+from model import fresnel, microfacet
 from model._params import Channel, as_column, channels_of
 from model.geometry import float_dtype
 
@@ -84,6 +85,27 @@ class Pair:
         wi . h would amplify rounding in |wi| by 1 / |wi + wo| for nearly opposite directions.
         """
         return np.clip(0.5 * self._sum_norm[1], 0.0, 1.0)
+
+    # What the microfacet terms derive from the directions alone: a fit evaluates hundreds of models on one Pair.
+    @cached_property
+    def sin2_cos2_h(self) -> tuple[Array, Array]:
+        """(sin^2, cos^2) of cos_h (microfacet.sin2_cos2), (..., 1) each."""
+        return microfacet.sin2_cos2(self.cos_h)
+
+    @cached_property
+    def tan2(self) -> tuple[Array, Array]:
+        """microfacet.ggx_tan2 of cos_i and of cos_o, (..., 1) each."""
+        return microfacet.ggx_tan2(self.cos_i), microfacet.ggx_tan2(self.cos_o)
+
+    @cached_property
+    def schlick_weight(self) -> Array:
+        """fresnel.schlick_weight of cos_d, (..., 1)."""
+        return fresnel.schlick_weight(self.cos_d)
+
+    @cached_property
+    def four_cos(self) -> Array:
+        """max(4 cos_i cos_o, tiny), the microfacet denominator, (..., 1)."""
+        return np.maximum(4.0 * self.cos_i * self.cos_o, self.tiny)
 
     def param(self, value: Channel) -> Array:
         """A parameter as a (C,) array in the working dtype, to broadcast against (..., 1)."""

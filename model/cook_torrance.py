@@ -136,15 +136,18 @@ class CookTorrance(Model):
             return fresnel.conductor(cos_d, p.param(self.eta), p.param(self.k))
         if self.fresnel == "dielectric":
             return fresnel.dielectric(cos_d, p.param(self.eta))
-        return fresnel.schlick(cos_d, p.param(self.f0))
+        return fresnel.schlick(cos_d, p.param(self.f0), weight=p.schlick_weight if cos_d is p.cos_d else None)
 
     def specular(self, p: Pair) -> Array:
         """The microfacet term alone, without the Fresnel factor: D G / (4 cos_i cos_o), (..., 1)."""
-        d = microfacet.distribution_d(self.distribution, p.cos_h, self.alpha)
-        g = microfacet.masking(self.masking, p.cos_i, p.cos_o, p.cos_h, p.cos_d, self.alpha, self.distribution)
+        kept = self.distribution != "blinn_phong"  # Blinn-Phong takes neither
+        smith = kept and self.distribution == "ggx" and self.masking in ("smith", "smith_correlated")
+        d = microfacet.distribution_d(self.distribution, p.cos_h, self.alpha, sin2_cos2=p.sin2_cos2_h if kept else None)
+        g = microfacet.masking(self.masking, p.cos_i, p.cos_o, p.cos_h, p.cos_d, self.alpha, self.distribution,
+                               tan2=p.tan2 if smith else None)  # fmt: skip
         # Exact Smith and Smith-Schlick G vanish like cos at grazing, so G / cos stays finite; with
         # masking "none" the value grows like 1/cos, as that model says, and stays finite for cos > 0.
-        den = np.maximum(4.0 * p.cos_i * p.cos_o, p.tiny)
+        den = p.four_cos
         scale = 4.0 if self.form == "cook_torrance_1982" else 1.0
         return scale * d * g / den
 

@@ -7,6 +7,8 @@ and a conductor's index is eta + i k with k the extinction coefficient (both dim
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
 
@@ -26,12 +28,21 @@ def ior_from_f0(f0: npt.ArrayLike) -> Array:
     return (1.0 + s) / (1.0 - s)
 
 
-def schlick(cos_i: npt.ArrayLike, f0: npt.ArrayLike) -> Array:
-    """Schlick's approximation F0 + (1 - F0)(1 - cos_i)^5; cos_i is clamped to [0, 1]."""
+def schlick_weight(cos_i: npt.ArrayLike) -> Array:
+    """(1 - cos_i)^5 with cos_i clamped to [0, 1]: the part of Schlick's approximation that depends on no F0."""
     c = np.clip(np.asarray(cos_i), 0.0, 1.0)
     m = 1.0 - c
     m2 = m * m
-    return f0 + (1.0 - np.asarray(f0, dtype=c.dtype)) * (m2 * m2 * m)
+    return np.asarray(m2 * m2 * m)
+
+
+def schlick(cos_i: npt.ArrayLike, f0: npt.ArrayLike, *, weight: Array | None = None) -> Array:
+    """Schlick's approximation F0 + (1 - F0)(1 - cos_i)^5; cos_i is clamped to [0, 1].
+
+    ``weight``: :func:`schlick_weight` of cos_i where the caller keeps it (a Pair, over a fit's evaluations).
+    """
+    w: Any = schlick_weight(cos_i) if weight is None else weight
+    return f0 + (1.0 - np.asarray(f0, dtype=w.dtype)) * w
 
 
 def dielectric(cos_i: npt.ArrayLike, eta: npt.ArrayLike) -> Array:

@@ -10,6 +10,7 @@ error. The cosine share never drops below 10 %, so diffuse parts stay covered.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -81,16 +82,55 @@ def directional_albedo(
         value = integrand.sum(axis=0)
         return Estimate(value, np.zeros_like(value))
     if method == "mc":
-        return _albedo_mc(model, w, n, np.random.default_rng(rng))
+        if isinstance(rng, int | np.integer) and not isinstance(rng, bool):
+            return _albedo_mc(model, w, n, _draws(n, int(rng)))
+        return _albedo_mc(model, w, n, _Draws(np.random.default_rng(rng).random((n, 3))))
     raise ValueError(f"method = {method!r}: expected 'quadrature' or 'mc'")
 
 
-def _albedo_mc(model: BRDF, wi: Array, n: int, rng: np.random.Generator) -> Estimate:
-    u = rng.random((n, 3))
+class _Draws:
+    """The uniform numbers (n, 3) of one Monte Carlo albedo and what follows from them alone, each made once.
+
+    A seeded albedo at several incidences (material.json states five) draws the same numbers at each, so the
+    cosine-weighted directions and each lobe's half vectors are the same arrays for all of them.
+    """
+
+    def __init__(self, u: Array) -> None:
+        self.u = u
+        self._half: tuple[tuple[str, float], Array] | None = None  # the last lobe's only: a batch sees many
+
+    @functools.cached_property
+    def cosine(self) -> Array:
+        """Cosine-weighted directions (n, 3) from u[:, 0] and u[:, 1]."""
+        return _cosine_sample(self.u[:, 0], self.u[:, 1])
+
+    def half(self, kind: str, alpha: float) -> Array:
+        """Half vectors (n, 3) of the ``kind`` lobe at ``alpha`` (as microfacet.sample_half_vector draws them)."""
+        key = (kind, alpha)
+        if self._half is None or self._half[0] != key:
+            self._half = key, microfacet.half_vectors(kind, alpha, self.u[:, 0], self.u[:, 1])[0]
+        return self._half[1]
+
+
+@functools.lru_cache(maxsize=2)
+def _draws(n: int, seed: int) -> _Draws:
+    """The draws of a seeded albedo (``rng`` an int), shared by every call with the same n and seed."""
+    u = np.random.default_rng(seed).random((n, 3))
+    u.setflags(write=False)
+    return _Draws(u)
+
+
+def prepare_albedo(n: int, seed: int = 0) -> None:
+    """Draw what a seeded ``directional_albedo(..., n, method="mc", rng=seed)`` needs before any model is known."""
+    _ = _draws(n, seed).cosine
+
+
+def _albedo_mc(model: BRDF, wi: Array, n: int, draws: _Draws) -> Estimate:
+    u = draws.u
     lobe = _lobe_of(model)
-    dirs = _cosine_sample(u[:, 0], u[:, 1])
+    dirs = draws.cosine
     if lobe is not None:
-        h, _ = microfacet.sample_half_vector(lobe[0], lobe[1], u[:, 0], u[:, 1])
+        h = draws.half(lobe[0], lobe[1])
         use_lobe = u[:, 2] < lobe[2]
         dirs = np.where(use_lobe[:, None], reflect(wi, h), dirs)
     cos_o = dirs[:, 2]

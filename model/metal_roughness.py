@@ -61,12 +61,12 @@ class MetalRoughness(Model):
 
     def _eval(self, p: Pair) -> Array:
         base = p.param(self.base_color)
-        d = microfacet.ggx_d(p.cos_h, self.alpha)
-        g = microfacet.masking("smith_correlated", p.cos_i, p.cos_o, p.cos_h, p.cos_d, self.alpha)
-        spec = d * g / np.maximum(4.0 * p.cos_i * p.cos_o, p.tiny)
-        f_d = fresnel.schlick(p.cos_d, F0_DIELECTRIC)
+        d = microfacet.ggx_d(p.cos_h, self.alpha, sin2_cos2=p.sin2_cos2_h)
+        g = microfacet.masking("smith_correlated", p.cos_i, p.cos_o, p.cos_h, p.cos_d, self.alpha, tan2=p.tan2)
+        spec = d * g / p.four_cos
+        f_d = fresnel.schlick(p.cos_d, F0_DIELECTRIC, weight=p.schlick_weight)
         dielectric = (1.0 - f_d) * base / np.pi + f_d * spec
-        metal = fresnel.schlick(p.cos_d, base) * spec
+        metal = fresnel.schlick(p.cos_d, base, weight=p.schlick_weight) * spec
         m = float(self.metallic)
         return (1.0 - m) * dielectric + m * metal
 

@@ -51,22 +51,39 @@ def _sin2_cos2(cos_h: Array) -> tuple[Array, Array]:
     return np.maximum(0.0, 1.0 - c2), c2
 
 
-def ggx_d(cos_h: npt.ArrayLike, alpha: npt.ArrayLike) -> Array:
-    """GGX (Trowbridge-Reitz) normal distribution D(h) in 1/sr; zero for cos_h <= 0."""
+def sin2_cos2(cos_h: npt.ArrayLike) -> tuple[Array, Array]:
+    """(sin^2, cos^2) of a half vector's zenith cosine, as the distributions take them (dimensionless)."""
+    return _sin2_cos2(np.asarray(cos_h))
+
+
+def ggx_tan2(cos_v: npt.ArrayLike) -> Array:
+    """tan^2 of a direction's zenith angle as :func:`ggx_lambda` takes it (cos^2 floored at the dtype's tiny)."""
+    c = np.asarray(cos_v)
+    c2 = np.maximum(c * c, np.finfo(c.dtype).tiny)
+    return np.asarray(np.maximum(0.0, 1.0 - c2) / c2)
+
+
+def ggx_d(cos_h: npt.ArrayLike, alpha: npt.ArrayLike, *, sin2_cos2: tuple[Array, Array] | None = None) -> Array:
+    """GGX (Trowbridge-Reitz) normal distribution D(h) in 1/sr; zero for cos_h <= 0.
+
+    ``sin2_cos2``: (sin^2, cos^2) of cos_h as :func:`sin2_cos2` makes them, where the caller keeps them (a Pair).
+    """
     c = np.asarray(cos_h)
     a2 = clamp_alpha(alpha).astype(c.dtype) ** 2
-    s2, c2 = _sin2_cos2(c)
+    s2, c2 = _sin2_cos2(c) if sin2_cos2 is None else sin2_cos2
     # sin^2 + alpha^2 cos^2 instead of cos^2 (alpha^2 - 1) + 1: no cancellation when alpha -> 0.
     den = s2 + a2 * c2
     d = a2 / (math.pi * np.maximum(den * den, np.finfo(c.dtype).tiny))
     return np.where(c > 0, d, 0.0).astype(c.dtype)
 
 
-def beckmann_d(cos_h: npt.ArrayLike, alpha: npt.ArrayLike) -> Array:
-    """Beckmann normal distribution D(h) in 1/sr with RMS slope alpha; zero for cos_h <= 0."""
+def beckmann_d(
+    cos_h: npt.ArrayLike, alpha: npt.ArrayLike, *, sin2_cos2: tuple[Array, Array] | None = None
+) -> Array:
+    """Beckmann normal distribution D(h) in 1/sr with RMS slope alpha; zero for cos_h <= 0 (``sin2_cos2``: ggx_d)."""
     c = np.asarray(cos_h)
     a2 = clamp_alpha(alpha).astype(c.dtype) ** 2
-    s2, c2 = _sin2_cos2(c)
+    s2, c2 = _sin2_cos2(c) if sin2_cos2 is None else sin2_cos2
     tiny = np.finfo(c.dtype).tiny
     c4 = np.maximum(c2 * c2, tiny)
     d = np.exp(-s2 / np.maximum(c2 * a2, tiny)) / (math.pi * a2 * c4)
@@ -81,12 +98,11 @@ def blinn_phong_d(cos_h: npt.ArrayLike, exponent: npt.ArrayLike) -> Array:
     return np.where(c > 0, d, 0.0).astype(c.dtype)
 
 
-def ggx_lambda(cos_v: npt.ArrayLike, alpha: npt.ArrayLike) -> Array:
-    """Smith Lambda of GGX for a direction with zenith cosine cos_v (> 0)."""
+def ggx_lambda(cos_v: npt.ArrayLike, alpha: npt.ArrayLike, *, tan2: Array | None = None) -> Array:
+    """Smith Lambda of GGX for a direction with zenith cosine cos_v (> 0); ``tan2``: its :func:`ggx_tan2`, if kept."""
     c = np.asarray(cos_v)
     a2 = clamp_alpha(alpha).astype(c.dtype) ** 2
-    c2 = np.maximum(c * c, np.finfo(c.dtype).tiny)
-    tan2 = np.maximum(0.0, 1.0 - c2) / c2
+    tan2 = ggx_tan2(c) if tan2 is None else tan2
     return 0.5 * (np.sqrt(1.0 + a2 * tan2) - 1.0)
 
 
@@ -105,16 +121,18 @@ def beckmann_lambda(cos_v: npt.ArrayLike, alpha: npt.ArrayLike) -> Array:
     return np.maximum(lam, 0.0).astype(c.dtype)
 
 
-def smith_g1(cos_v: npt.ArrayLike, alpha: npt.ArrayLike, distribution: str = "ggx") -> Array:
-    """Exact Smith masking G1 = 1 / (1 + Lambda) of one direction; zero for cos_v <= 0."""
+def smith_g1(
+    cos_v: npt.ArrayLike, alpha: npt.ArrayLike, distribution: str = "ggx", *, tan2: Array | None = None
+) -> Array:
+    """Exact Smith masking G1 = 1 / (1 + Lambda) of one direction; zero for cos_v <= 0 (``tan2``: ggx_lambda)."""
     c = np.asarray(cos_v)
-    lam = _lambda(c, alpha, distribution)
+    lam = _lambda(c, alpha, distribution, tan2)
     return np.where(c > 0, 1.0 / (1.0 + lam), 0.0).astype(c.dtype)
 
 
-def _lambda(cos_v: Array, alpha: npt.ArrayLike, distribution: str) -> Array:
+def _lambda(cos_v: Array, alpha: npt.ArrayLike, distribution: str, tan2: Array | None = None) -> Array:
     if distribution == "ggx":
-        return ggx_lambda(cos_v, alpha)
+        return ggx_lambda(cos_v, alpha, tan2=tan2)
     # Blinn-Phong has no closed-form Lambda; Walter et al. use Beckmann's at the equivalent alpha.
     return beckmann_lambda(cos_v, alpha)
 
@@ -142,12 +160,18 @@ def masking(
     cos_oh: Array,
     alpha: npt.ArrayLike,
     distribution: str = "ggx",
+    *,
+    tan2: tuple[Array, Array] | None = None,
 ) -> Array:
-    """Joint masking-shadowing G(wi, wo) of the named kind (see :data:`MASKINGS`)."""
+    """Joint masking-shadowing G(wi, wo) of the named kind (see :data:`MASKINGS`).
+
+    ``tan2``: the :func:`ggx_tan2` of cos_i and cos_o where the caller keeps them (a Pair); GGX's Smith uses them.
+    """
+    t_i, t_o = (None, None) if tan2 is None else tan2
     if kind == "smith":
-        return smith_g1(cos_i, alpha, distribution) * smith_g1(cos_o, alpha, distribution)
+        return smith_g1(cos_i, alpha, distribution, tan2=t_i) * smith_g1(cos_o, alpha, distribution, tan2=t_o)
     if kind == "smith_correlated":
-        lam = _lambda(cos_i, alpha, distribution) + _lambda(cos_o, alpha, distribution)
+        lam = _lambda(cos_i, alpha, distribution, t_i) + _lambda(cos_o, alpha, distribution, t_o)
         return np.where((cos_i > 0) & (cos_o > 0), 1.0 / (1.0 + lam), 0.0).astype(cos_i.dtype)
     if kind == "smith_schlick":
         k = 0.5 * clamp_alpha(alpha)
@@ -159,22 +183,23 @@ def masking(
     raise ValueError(f"unknown masking {kind!r}; expected one of {MASKINGS}")
 
 
-def distribution_d(kind: str, cos_h: Array, alpha: npt.ArrayLike) -> Array:
-    """Normal distribution D(h) of the named kind at roughness alpha (Blinn-Phong via its exponent)."""
+def distribution_d(
+    kind: str, cos_h: Array, alpha: npt.ArrayLike, *, sin2_cos2: tuple[Array, Array] | None = None
+) -> Array:
+    """Normal distribution D(h) of the named kind at roughness alpha (Blinn-Phong via its exponent; ``sin2_cos2``:
+    see ggx_d)."""
     if kind == "ggx":
-        return ggx_d(cos_h, alpha)
+        return ggx_d(cos_h, alpha, sin2_cos2=sin2_cos2)
     if kind == "beckmann":
-        return beckmann_d(cos_h, alpha)
+        return beckmann_d(cos_h, alpha, sin2_cos2=sin2_cos2)
     if kind == "blinn_phong":
         a = clamp_alpha(alpha)
         return blinn_phong_d(cos_h, alpha_to_blinn_exponent(a))
     raise ValueError(f"unknown distribution {kind!r}; expected one of {DISTRIBUTIONS}")
 
 
-def sample_half_vector(
-    kind: str, alpha: float, u1: Array, u2: Array
-) -> tuple[Array, Array]:
-    """Sample h with density D(h) cos(theta_h) from uniform numbers u1, u2; returns (h, pdf_h in 1/sr)."""
+def half_vectors(kind: str, alpha: float, u1: Array, u2: Array) -> tuple[Array, Array]:
+    """The half vectors h (N, 3) :func:`sample_half_vector` draws from u1, u2, and their cos(theta_h) (no pdf)."""
     a = max(float(alpha), ALPHA_MIN)
     if kind == "ggx":
         cos_t = 1.0 / np.sqrt(1.0 + a * a * u1 / np.maximum(1.0 - u1, 1e-300))
@@ -187,6 +212,13 @@ def sample_half_vector(
         raise ValueError(f"unknown distribution {kind!r}; expected one of {DISTRIBUTIONS}")
     sin_t = np.sqrt(np.maximum(0.0, 1.0 - cos_t * cos_t))
     phi = 2.0 * math.pi * u2
-    h = np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t], axis=-1)
-    pdf = distribution_d(kind, cos_t, a) * cos_t
-    return h, pdf
+    return np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t], axis=-1), cos_t
+
+
+def sample_half_vector(
+    kind: str, alpha: float, u1: Array, u2: Array
+) -> tuple[Array, Array]:
+    """Sample h with density D(h) cos(theta_h) from uniform numbers u1, u2; returns (h, pdf_h in 1/sr)."""
+    h, cos_t = half_vectors(kind, alpha, u1, u2)
+    a = max(float(alpha), ALPHA_MIN)
+    return h, distribution_d(kind, cos_t, a) * cos_t

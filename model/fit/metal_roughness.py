@@ -39,6 +39,7 @@ a metal-roughness source comes back to rounding.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -71,6 +72,8 @@ METAL_ROUGHNESS = FitSpec(
 COSINE_SHARE = 0.5
 #: GGX roughnesses whose mirror lobes the samples resolve (peaks narrower than the smallest are undersampled).
 LOBE_ALPHAS: tuple[float, ...] = (0.03, 0.1, 0.3)
+#: Pairs the projection is fitted to (to_metal_roughness's default).
+FIT_SAMPLES = 4000
 #: Fresh pairs on which the reported error is estimated.
 ERROR_SAMPLES = 50_000
 #: Zenith angle (degrees, either direction) beyond which pairs count as grazing for the worst difference.
@@ -141,7 +144,7 @@ def sample_pairs(n: int, rng: np.random.Generator) -> tuple[Array, Array, Array]
     wo = _cosine(u[:, 2], u[:, 3])
     for j, alpha in enumerate(LOBE_ALPHAS, start=1):
         pick = comp == j
-        h, _ = microfacet.sample_half_vector("ggx", alpha, u[pick, 2], u[pick, 3])
+        h, _ = microfacet.half_vectors("ggx", alpha, u[pick, 2], u[pick, 3])
         wo[pick] = reflect(wi[pick], h)
     ok = (wi[:, 2] > 0) & (wo[:, 2] > 0)
     wi, wo = wi[ok], wo[ok]
@@ -168,11 +171,24 @@ def _usable(model: BRDF, wi: Array, wo: Array) -> npt.NDArray[np.bool_]:
     return np.asarray(has_data(wi, wo), dtype=bool) if callable(has_data) else np.ones(len(wi), dtype=bool)
 
 
+@functools.lru_cache(maxsize=4)
+def seeded_pairs(samples: int, seed: int) -> tuple[tuple[Array, Array, Array], tuple[Array, Array, Array]]:
+    """The pairs :func:`to_metal_roughness` fits to (``samples``) and those it measures the error on (read-only).
+
+    They depend on no model, so they are drawn once per process (an export standby draws them before the fit).
+    """
+    fit_rng, error_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    drawn = sample_pairs(samples, fit_rng), sample_pairs(ERROR_SAMPLES, error_rng)
+    for a in (*drawn[0], *drawn[1]):
+        a.setflags(write=False)
+    return drawn
+
+
 def _error(
-    source: BRDF, material: MetalRoughness, rng: np.random.Generator
+    source: BRDF, material: MetalRoughness, pairs: tuple[Array, Array, Array]
 ) -> tuple[float, tuple[float, ...], float, tuple[float, float, float], int]:
     """(E pooled, E per channel, worst relative difference, (theta_i, theta_o, dphi) deg, pairs used)."""
-    wi, wo, w = sample_pairs(ERROR_SAMPLES, rng)
+    wi, wo, w = pairs
     keep = _usable(source, wi, wo)
     wi, wo, w = wi[keep], wo[keep], w[keep]
     f = _values(source, wi, wo)
@@ -192,12 +208,11 @@ def _error(
     return pooled, per_channel, float(max(rel[i].max(), 0.0)), where, len(wi)
 
 
-def to_metal_roughness(model: BRDF, *, samples: int = 4000, seed: int = 0) -> MetalRoughnessFit:
+def to_metal_roughness(model: BRDF, *, samples: int = FIT_SAMPLES, seed: int = 0) -> MetalRoughnessFit:
     """The glTF metal-roughness material closest to ``model`` (any BRDF, f_r in 1/sr) and its error."""
     if samples < 100:
         raise ValueError(f"to_metal_roughness: samples = {samples}; need at least 100 direction pairs")
-    fit_rng, error_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
-    wi, wo, w = sample_pairs(samples, fit_rng)
+    (wi, wo, w), error_pairs = seeded_pairs(samples, seed)
     keep = _usable(model, wi, wo)
     wi, wo, w = wi[keep], wo[keep], w[keep]
     f = _values(model, wi, wo)
@@ -213,7 +228,7 @@ def to_metal_roughness(model: BRDF, *, samples: int = 4000, seed: int = 0) -> Me
     result = fit(METAL_ROUGHNESS, Samples(wi, wo, f, se, source=name), loss="l2", weighted=True, warn=False)
     material = result.model
     assert isinstance(material, MetalRoughness)
-    pooled, per_channel, worst, where, n_error = _error(model, material, error_rng)
+    pooled, per_channel, worst, where, n_error = _error(model, material, error_pairs)
     return MetalRoughnessFit(
         material, model, pooled, per_channel, worst, where, len(wi), n_error, result.n_starts, result.n_starts_agreeing
     )

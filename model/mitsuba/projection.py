@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -96,8 +97,12 @@ class NativeProjection:
         )
 
 
+@functools.lru_cache(maxsize=4)
 def grid_pairs(phi_i_deg: tuple[float, ...] = GRID_PHI_I_DEG) -> tuple[Array, Array]:
-    """The error grid (wi, wo), each (N, 3), float32-rounded as Mitsuba sees them; phi_i slowest."""
+    """The error grid (wi, wo), each (N, 3), float32-rounded as Mitsuba sees them; phi_i slowest (read-only).
+
+    Built once per process (every stock form's error is taken on it): an export standby builds it before the fit.
+    """
     ti, to, dphi = np.meshgrid(np.radians(GRID_THETA_DEG), np.radians(GRID_THETA_DEG), np.radians(GRID_DPHI_DEG),
                                indexing="ij")  # fmt: skip
     wi, wo = [], []
@@ -105,7 +110,14 @@ def grid_pairs(phi_i_deg: tuple[float, ...] = GRID_PHI_I_DEG) -> tuple[Array, Ar
         wi.append(spherical_to_vector(ti.ravel(), np.full(ti.size, phi)))
         wo.append(spherical_to_vector(to.ravel(), phi + dphi.ravel()))
     f32 = np.float32
-    return np.concatenate(wi).astype(f32).astype(np.float64), np.concatenate(wo).astype(f32).astype(np.float64)
+    return (_frozen(np.concatenate(wi).astype(f32).astype(np.float64)),
+            _frozen(np.concatenate(wo).astype(f32).astype(np.float64)))  # fmt: skip
+
+
+def _frozen(a: Array) -> Array:
+    """``a`` made read-only: a cached array handed to every caller must not be changed by one."""
+    a.setflags(write=False)
+    return a
 
 
 def mitsuba_values(bsdf: dict[str, Any], wi: Array, wo: Array, variant: str | None = None) -> Array:
@@ -137,6 +149,20 @@ def _values(model: BRDF, wi: Array, wo: Array) -> Array:
     return np.asarray(model.eval(wi, wo), dtype=np.float64).reshape(len(wi), -1)
 
 
+def _grid_values(model: BRDF) -> Array:
+    """The model's values on the whole error grid (read-only): an export takes them three times."""
+    try:
+        return _kept_grid_values(model)  # type: ignore[arg-type]
+    except TypeError:  # a model that does not hash (a table of arrays) is evaluated each time
+        return _values(model, *grid_pairs())
+
+
+@functools.lru_cache(maxsize=2)
+def _kept_grid_values(model: BRDF) -> Array:
+    # Keyed by the model's value (frozen dataclasses hash their fields): equal models have equal values.
+    return _frozen(_values(model, *grid_pairs()))
+
+
 def _rms(g: Array, f: Array, w: Array) -> tuple[float, list[float]]:
     d2, f2 = np.sum(w[:, None] * (g - f) ** 2, axis=0), np.sum(w[:, None] * f**2, axis=0)
     return float(np.sqrt(d2.sum() / max(f2.sum(), 1e-300))), [float(x) for x in np.sqrt(d2 / np.maximum(f2, 1e-300))]
@@ -153,7 +179,7 @@ def grid_error(
     """
     name = variant or pick_variant("rgb")
     wi, wo = grid_pairs()
-    f = _values(source, wi, wo)
+    f = _grid_values(source)
     if isotropic:
         slice_wi, slice_wo = grid_pairs(GRID_PHI_I_DEG[:1])
         g = np.tile(mitsuba_values(bsdf, slice_wi, slice_wo, name), (len(GRID_PHI_I_DEG), 1))
@@ -215,8 +241,15 @@ def warm_start(spec: FitSpec, source: BRDF) -> FitSpec | None:
     return dataclasses.replace(spec, params=tuple(params))
 
 
-def _fit_family(spec: FitSpec, source: BRDF, seed: int) -> BRDF:
+@functools.lru_cache(maxsize=4)
+def fit_pairs(seed: int = 0) -> tuple[Array, Array, Array]:
+    """The FIT_SAMPLES pairs (wi, wo, weight) a projection is fitted to (read-only; they depend on no model)."""
     wi, wo, w = sample_pairs(FIT_SAMPLES, np.random.default_rng(seed))
+    return _frozen(wi), _frozen(wo), _frozen(w)
+
+
+def _fit_family(spec: FitSpec, source: BRDF, seed: int) -> BRDF:
+    wi, wo, w = fit_pairs(seed)
     f = _values(source, wi, wo)
     # Importance weights as std errors, as model.fit.metal_roughness does (their chi2 means nothing).
     se = np.broadcast_to(1.0 / np.sqrt(w / w.mean())[:, None], f.shape)
@@ -232,7 +265,7 @@ def native_projection(model: BRDF, *, seed: int = 0, variant: str | None = None)
     mat = to_mitsuba(model)
     if mat.native:
         return NativeProjection(model, model, mat, True, grid_error(model, mat.bsdf, variant))
-    f = _values(model, *grid_pairs())
+    f = _grid_values(model)
     if not np.all(np.isfinite(f)) or not np.any(f > 0):
         raise ValueError(f"{type(model).__name__}: values not finite or all zero on the grid; nothing to project")
     for spec in FAMILIES:

@@ -51,6 +51,7 @@ azimuth step (17 azimuths), 13.4 MB; :attr:`Tabulated.size_bytes` says the exact
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import tempfile
@@ -209,27 +210,53 @@ def symmetry(model: BRDF, pairs: int = 512, seed: int = 0) -> int:
 
 @dataclass(frozen=True)
 class _Square:
-    """The n x n nodes of the unit square (rows: u_y, phi; columns: u_x, theta) and their quadrature weights."""
+    """The n x n nodes of the unit square (rows: u_y, phi; columns: u_x, theta) and their quadrature weights.
+
+    Each is computed once (the NDF's power iterations read them a dozen times): use :func:`_square`, which
+    keeps one per n for the process, so an export standby can build them before the fit.
+    """
 
     n: int
 
-    @property
+    @functools.cached_property
     def u(self) -> tuple[Array, Array]:
         ux, uy = np.meshgrid(np.linspace(0.0, 1.0, self.n), np.linspace(0.0, 1.0, self.n))
-        return ux, uy
+        return _frozen(ux), _frozen(uy)
 
-    @property
+    @functools.cached_property
     def m(self) -> Array:
         ux, uy = self.u
-        return _sph(_u2theta(ux), _u2phi(uy))
+        return _frozen(_sph(_u2theta(ux), _u2phi(uy)))
 
-    @property
+    @functools.cached_property
+    def flat_m(self) -> Array:
+        """``m`` as (n^2, 3)."""
+        return self.m.reshape(-1, 3)
+
+    @functools.cached_property
     def weights(self) -> Array:
         """Solid angle per node: trapezoid in u times d(omega)/du = 2 pi^2 u_x sin(theta)."""
         t = np.full(self.n, 1.0 / (self.n - 1))
         t[[0, -1]] *= 0.5
         ux, _ = self.u
-        return np.asarray(np.outer(t, t) * 2.0 * np.pi**2 * ux * np.sin(_u2theta(ux)))
+        return _frozen(np.asarray(np.outer(t, t) * 2.0 * np.pi**2 * ux * np.sin(_u2theta(ux))))
+
+
+def _frozen(a: Array) -> Array:
+    a.setflags(write=False)  # shared by every tabulation in the process: no caller may change it
+    return a
+
+
+@functools.lru_cache(maxsize=4)
+def _square(n: int) -> _Square:
+    """The n x n square, shared by every tabulation at that resolution."""
+    return _Square(n)
+
+
+def prepare_tabulation(grid: TabulationGrid | None = None) -> None:
+    """Build what :func:`tabulate` needs at ``grid`` that depends on no model (the unit square's nodes)."""
+    sq = _square((grid or TabulationGrid()).ndf)
+    _ = sq.flat_m, sq.weights
 
 
 def _sigma(d: Array, sq: _Square, w: Array, isotropic: bool = False) -> Array:
@@ -240,7 +267,7 @@ def _sigma(d: Array, sq: _Square, w: Array, isotropic: bool = False) -> Array:
     """
     if isotropic:
         return np.broadcast_to(_sigma(d, sq, w[:1]), w.shape[:-1]).copy()
-    m, q = sq.m.reshape(-1, 3), (sq.weights * d).ravel()
+    m, q = sq.flat_m, (sq.weights * d).ravel()
     flat = w.reshape(-1, 3)
     out = np.concatenate([np.maximum(flat[i : i + 256] @ m.T, 0.0) @ q for i in range(0, len(flat), 256)])
     return out.reshape(w.shape[:-1])
@@ -252,7 +279,7 @@ def _normalise(d: Array, sq: _Square) -> Array:
 
 def retro_ndf(model: BRDF, n: int, isotropic: bool) -> tuple[Array, Array]:
     """The NDF (n x n over the unit square, normalised: integral of D cos = 1) and sigma at the same nodes."""
-    sq = _Square(n)
+    sq = _square(n)
     ux, _ = sq.u
     theta = np.minimum(_u2theta(ux), THETA_EVAL_MAX)
     w = _sph(theta, _u2phi(sq.u[1]))
@@ -310,7 +337,7 @@ def tabulate(model: BRDF, grid: TabulationGrid | None = None, *, variant: str | 
     name = type(model).__name__
     sym = symmetry(model)
     ndf, sigma = retro_ndf(model, grid.ndf, sym == 0)
-    sq = _Square(grid.ndf)
+    sq = _square(grid.ndf)
     theta_i = np.linspace(0.0, np.pi / 2.0, grid.theta_i)
     phi_i = _phi_nodes(sym == 0, grid.phi_i)
     s = grid.samples
@@ -375,3 +402,4 @@ def tabulated_error(model: BRDF, table: Tabulated, variant: str | None = None) -
     with tempfile.TemporaryDirectory(prefix="gonio-bsdf-") as tmp:
         path = table.write(Path(tmp) / "material.bsdf")
         return grid_error(model, measured_bsdf(str(path)), variant, isotropic=table.isotropic)
+
