@@ -101,18 +101,22 @@ def _analyze(args: argparse.Namespace) -> int:
     collecting = gc.isenabled()
     gc.disable()
     try:
-        import model.fit.solve  # noqa: F401  (numpy and scipy, which every process needs: loaded once, before the forks)
+        import numpy  # noqa: F401  (which every process needs: loaded once, before the forks)
+
         from analysis.figure_pool import Standby
 
         # The figures' process loads matplotlib and the report's modules, the exports' process Mitsuba, while this
-        # one loads the run's configuration and fits; they draw and export once the fit is handed to them
-        # (write_report). The figures' standby is forked first: it forks a worker of its own, which must not
-        # inherit Mitsuba.
-        with (
-            Standby(_figure_modules) if args.jobs > 1 else contextlib.nullcontext() as standby,
-            Standby(_export_modules) if args.jobs > 1 else contextlib.nullcontext() as exporter,
-        ):
-            return _analyze_with(args, standby, exporter, collecting)
+        # one loads scipy and the run's configuration and fits; they draw and export once the fit is handed to them
+        # (write_report). The figures' standby is forked first, before scipy, which no figure needs (the fit's
+        # modules load it only to solve): it loads matplotlib on the second core while this process loads scipy,
+        # which the exports need too (their own fits), so their standby is forked after it. The figures' standby
+        # forks a worker of its own, which must not inherit Mitsuba.
+        with Standby(_figure_modules) if args.jobs > 1 else contextlib.nullcontext() as standby:
+            import scipy.optimize
+            import scipy.special  # noqa: F401
+
+            with Standby(_export_modules) if args.jobs > 1 else contextlib.nullcontext() as exporter:
+                return _analyze_with(args, standby, exporter, collecting)
     finally:
         if collecting:
             gc.enable()

@@ -28,15 +28,18 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
-from scipy import optimize
 
 from model.base import Model, Pair
 from model.fit.samples import Samples
 from model.fit.spec import FitSpec
 from model.fit.tall import solve_tall
+
+if TYPE_CHECKING:
+    from scipy import optimize
 
 Array = npt.NDArray[np.float64]
 Groups = list[list[tuple[int, int | None]]]
@@ -171,6 +174,8 @@ class Problem:
         if self.rows.n * self.c >= TALL_RESIDUALS:
             jac = functools.partial(self.jac, reuse=True)
             return solve_tall(self.residuals, jac, u0, bounds, robust, f_scale, max_nfev)
+        from scipy import optimize  # here: the report's processes use the fit's types, never the solver
+
         return optimize.least_squares(
             self.residuals, u0, jac=self.jac, bounds=bounds, loss=robust or "linear", f_scale=f_scale,
             x_scale="jac", max_nfev=max_nfev,

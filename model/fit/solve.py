@@ -47,7 +47,6 @@ from typing import cast
 
 import numpy as np
 import numpy.typing as npt
-from scipy import special
 
 from model._params import ParameterError
 from model.base import Model
@@ -121,6 +120,8 @@ class FitResult:
     def p_value(self) -> float:
         """Probability of a chi2 at least this large if the model were true and the errors right."""
         # chdtrc is chi2's survival function itself; scipy.stats would cost a second and a half of imports.
+        from scipy import special  # here: a process that only reads fit results need not load scipy
+
         return float(special.chdtrc(self.dof, self.chi2)) if self.dof > 0 else float("nan")
 
     @property

@@ -24,10 +24,13 @@ and the optimiser runs with the plain loss.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
-from scipy import optimize
+
+if TYPE_CHECKING:
+    from scipy import optimize
 
 Array = npt.NDArray[np.float64]
 #: A solve whose Jacobian turned further than this (sine of the angle) out of span(Q) is continued with a new Q.
@@ -148,6 +151,8 @@ def solve_tall(
     ``fun`` returns the M residuals at u, ``jac`` their (M, P) Jacobian at u right after ``fun(u)`` (it may
     reuse one buffer between calls: it is consumed at once).
     """
+    from scipy import optimize  # here, as in model/fit/problem.py
+
     p = _Projected(fun, jac, robust, f_scale)
     u, nfev, njev = np.asarray(u0, dtype=np.float64), 0, 0
     budget = 100 * u.size if max_nfev is None else max_nfev  # least_squares' own default for one run

@@ -151,3 +151,39 @@ def test_a_figure_is_drawn_with_the_collector_paused_and_its_cycles_freed_after(
         assert without_gc(draw) == 7 and not gc.isenabled()  # a caller's paused collector stays paused
     finally:
         gc.enable()
+
+
+FIT_AND_PICKLE = """
+import sys, cloudpickle
+from analysis.analyze import load_and_fit
+from analysis.ladder import parse_models
+from model import CookTorrance
+from model.merl import MerlTable, write_merl
+write_merl(MerlTable.from_model(CookTorrance(alpha=0.2, fresnel="dielectric", eta=1.5, rho_d=(0.2, 0.3, 0.4))),
+           sys.argv[1] + "/plastic.binary")
+a = load_and_fit(sys.argv[1] + "/plastic.binary", models=parse_models("lambert,lambert_ggx"), samples=400)
+open(sys.argv[1] + "/analysis.pickle", "wb").write(cloudpickle.dumps(a))
+"""
+DRAW_WITHOUT_SCIPY = """
+import pickle, sys
+import analysis.report_html, analysis.report_plots
+from analysis.report_plots import write_figures
+assert not [m for m in sys.modules if m.split(".")[0] == "scipy"], "the figures' modules loaded scipy"
+a = pickle.loads(open(sys.argv[1] + "/analysis.pickle", "rb").read())
+figures = write_figures(a, sys.argv[1] + "/figures", jobs=1)
+print(len(figures.files), sorted(m for m in sys.modules if m.split(".")[0] == "scipy"))
+"""
+
+
+def test_the_figures_are_drawn_without_scipy(tmp_path: Path) -> None:
+    # gonio analyze forks its figures' process before loading scipy (0.3 CPU s), so that process loads matplotlib
+    # while the main one loads scipy: that holds only while reading a fit's results and drawing them need no scipy.
+    fitted = subprocess.run([sys.executable, "-c", FIT_AND_PICKLE, str(tmp_path)], cwd=ROOT, capture_output=True,
+                            text=True, timeout=600)  # fmt: skip
+    assert fitted.returncode == 0, fitted.stderr
+    drawn = subprocess.run([sys.executable, "-c", DRAW_WITHOUT_SCIPY, str(tmp_path)], cwd=ROOT, capture_output=True,
+                           text=True, timeout=600)  # fmt: skip
+    assert drawn.returncode == 0, drawn.stderr
+    count, loaded = drawn.stdout.split(maxsplit=1)
+    assert int(count) >= 5 and loaded.strip() == "[]", drawn.stdout
+    assert sorted(p.suffix for p in (tmp_path / "figures").iterdir()) == [".png"] * int(count)
