@@ -60,8 +60,10 @@ def load_and_fit(
     log: Log | None = None,
     errors: str = "total",
     progress: bool = False,
+    jobs: int = 1,
 ) -> Analysis:
-    """Load a run, an adaptive sweep, a samples table or a MERL file (``samples`` random bins), fit and choose."""
+    """Load a run, an adaptive sweep, a samples table or a MERL file (``samples`` random bins), fit and choose
+    (``jobs`` > 1: candidates fitted in two processes where that is safe, see :func:`analysis.ladder.fit_ladder`)."""
     say = log or (lambda _: None)
     path = Path(source)
     kind = source_kind(path)
@@ -95,7 +97,7 @@ def load_and_fit(
     try:
         angular: dict[str, Any] = {}
         selection, times, caught = fit_ladder(data, ladder, loss=loss, starts=starts, seed=seed, log=say,
-                                              angular=angular, progress=progress)  # fmt: skip
+                                              angular=angular, progress=progress, jobs=jobs)  # fmt: skip
     except FitError as exc:
         raise AnalysisError(f"{path}: cannot fit: {exc}") from exc
     variance = angular.get(selection.chosen_name) if data.direction_cov.size else None

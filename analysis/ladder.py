@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -50,6 +51,10 @@ def parse_models(text: str) -> list[FitSpec]:
 
 
 
+#: What fitting one candidate gives: the candidate, its seconds, the warnings it raised, its angular variance.
+Outcome = tuple[Candidate, float, list[str], "Array | None"]
+
+
 def fit_ladder(
     samples: Samples,
     ladder: Sequence[FitSpec],
@@ -62,41 +67,96 @@ def fit_ladder(
     log: Log | None = None,
     angular: dict[str, Array] | None = None,
     progress: bool = False,
+    jobs: int = 1,
 ) -> tuple[Selection, dict[str, float], list[str]]:
     """Fit every candidate (timed, warnings captured) and choose as select() does: (selection, seconds, warnings).
 
     Samples with a direction covariance are fitted with effective errors (photometric plus angular,
     :func:`model.fit.angular.fit_with_angular`); ``angular``, if given, receives each candidate's angular
     variance per sample (N, C) in (1/sr)^2. ``progress``: a bar with ETA over the candidates (stderr).
+    ``jobs`` > 1: a forked process fits candidates beside this one where that is safe (analysis/figure_pool.py);
+    each candidate's fit is the same either way (its own seeded starts), and so is what is logged, in ladder order.
     """
-    cands, times, caught = [], {}, []
+    from analysis.figure_pool import ForkedCall, fork_safe
+
+    def fit_one(i: int) -> Outcome:
+        return _fit_candidate(ladder[i], samples, loss, starts, seed)
+
+    outcomes: dict[int, Outcome] = {}
     bar = stage_bar(len(ladder), "fitting", progress, unit="model")
-    for spec in ladder:
-        bar.set_postfix_str(spec.name, refresh=False)
-        k = len(spec.labels(samples.channels))
-        start = time.perf_counter()
-        with warnings.catch_warnings(record=True) as got:
-            warnings.simplefilter("always")
-            try:
-                result, variance = fit_with_angular(spec, samples, loss, starts=starts, seed=seed)
-                cand = Candidate(spec.name, k, result)
-                if angular is not None:
-                    angular[spec.name] = variance
-            except FitError as exc:
-                cand = Candidate(spec.name, k, None, str(exc))
-        times[spec.name] = time.perf_counter() - start
-        # A fit with angular errors is several fits in turn, each warning with its own numbers; only the last
-        # fit's notes describe the result (model.fit.solve prefixes them with the spec's name, as here).
-        caught += [f"{w.category.__name__}: {w.message}" for w in got if not issubclass(w.category, FitWarning)]
-        if cand.result is not None:
-            caught += [f"{spec.name}: {note}" for note in cand.result.warnings]
-        else:
-            caught += [str(w.message) for w in got if issubclass(w.category, FitWarning)]
-        cands.append(cand)
-        if log:
-            r = cand.result
-            how = f"chi2/dof = {r.reduced_chi2:.4g}" if r is not None else f"not fitted: {cand.error}"
-            log(f"fitting {spec.name} ({k} parameters): {how} ({times[spec.name]:.2f} s)")
-        bar.update()
+    shown = 0
+
+    def show() -> None:  # the candidates known so far, in ladder order
+        nonlocal shown
+        while shown in outcomes:
+            cand, seconds = outcomes[shown][0], outcomes[shown][1]
+            if log:
+                r = cand.result
+                how = f"chi2/dof = {r.reduced_chi2:.4g}" if r is not None else f"not fitted: {cand.error}"
+                log(f"fitting {cand.name} ({cand.n_params} parameters): {how} ({seconds:.2f} s)")
+            shown += 1
+            if shown < len(ladder):
+                bar.set_postfix_str(ladder[shown].name, refresh=False)
+            bar.update()
+
+    if len(ladder) > 0:
+        bar.set_postfix_str(ladder[0].name, refresh=False)
+    if jobs > 1 and len(ladder) > 1 and fork_safe():
+        # Both processes take the next candidate not yet taken, so neither waits while the other has two to fit.
+        import multiprocessing
+
+        taken = multiprocessing.get_context("fork").Value("i", 0)
+        with ForkedCall(lambda: {i: fit_one(i) for i in _next_of(taken, len(ladder))}, fork=True,
+                        fallback=lambda: {i: fit_one(i) for i in range(len(ladder)) if i not in outcomes}) as other:
+            for i in _next_of(taken, len(ladder)):
+                outcomes[i] = fit_one(i)
+                show()
+            outcomes.update(other.result())
+    for i in range(len(ladder)):
+        if i not in outcomes:
+            outcomes[i] = fit_one(i)
+        show()
     bar.close()
+    cands, times, caught = [], {}, []
+    for i in range(len(ladder)):
+        cand, seconds, warned, variance = outcomes[i]
+        cands.append(cand)
+        times[cand.name] = seconds
+        caught += warned
+        if angular is not None and variance is not None:
+            angular[cand.name] = variance
     return choose(cands, criterion, delta), times, list(dict.fromkeys(caught))
+
+
+def _next_of(taken: Any, n: int) -> Iterator[int]:
+    """Indices below n, each handed to one process only (``taken``: a shared counter both processes draw from)."""
+    while True:
+        with taken.get_lock():
+            i = taken.value
+            taken.value = i + 1
+        if i >= n:
+            return
+        yield i
+
+
+def _fit_candidate(spec: FitSpec, samples: Samples, loss: str, starts: int, seed: int) -> Outcome:
+    """One candidate fitted, timed, with the warnings it raised (as the report lists them)."""
+    k = len(spec.labels(samples.channels))
+    start = time.perf_counter()
+    variance = None
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        try:
+            result, variance = fit_with_angular(spec, samples, loss, starts=starts, seed=seed)
+            cand = Candidate(spec.name, k, result)
+        except FitError as exc:
+            cand = Candidate(spec.name, k, None, str(exc))
+    seconds = time.perf_counter() - start
+    # A fit with angular errors is several fits in turn, each warning with its own numbers; only the last
+    # fit's notes describe the result (model.fit.solve prefixes them with the spec's name, as here).
+    caught = [f"{w.category.__name__}: {w.message}" for w in got if not issubclass(w.category, FitWarning)]
+    if cand.result is not None:
+        caught += [f"{spec.name}: {note}" for note in cand.result.warnings]
+    else:
+        caught += [str(w.message) for w in got if issubclass(w.category, FitWarning)]
+    return cand, seconds, caught, variance

@@ -139,7 +139,7 @@ def _analyze_with(args: argparse.Namespace, standby: Standby | None, exporter: S
     whole = _whole(out, args.force)  # before the fit: a refusal should not cost minutes
     a = load_and_fit(args.source, models=models, loss=args.loss, starts=args.starts, samples=args.samples,
                      seed=args.seed, compare=args.compare, log=log, errors=args.errors,
-                     progress=not args.quiet)  # fmt: skip
+                     progress=not args.quiet, jobs=args.jobs)  # fmt: skip
     options = {"y_scale": args.y_scale, "merl": args.merl, "mitsuba_plugin": args.mitsuba_plugin, "svg": args.svg,
                "progress": not args.quiet, "jobs": args.jobs, "mitsuba_stock": args.mitsuba_stock,
                "standby": standby, "exporter": exporter}  # fmt: skip
