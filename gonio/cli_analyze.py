@@ -174,7 +174,8 @@ def add_analyze_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     add_fit_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.add_argument("--jobs", type=_positive, default=min(os.cpu_count() or 1, 4),
-                   help="processes drawing the figures side by side (default: the cores, at most 4; 1: none)")
+                   help="processes drawing the figures side by side, and with 2 or more two fit the candidates "
+                   "(default: the cores, at most 4; 1: everything in this process)")
     p.set_defaults(func=_analyze)
 
 
