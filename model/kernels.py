@@ -28,8 +28,10 @@ the dielectric and Schlick loops stayed scalar there (LLVM's remark: "the cost-m
 vectorization is not beneficial", likely the stride-3 loads against a cheaper body; splitting blocks
 into one array per component, tried for the conductor, vectorised it at the same speed as the
 interleaved loop, but was not tried for these), and Beckmann stays scalar on
-any target (libm exp and erfc; numba would vectorise them only through Intel's SVML). AVX-512 doubles
-the lanes where LLVM chooses 512-bit vectors; that was not measured here. sqrt and division are
+any target (libm exp and erfc; numba would vectorise them only through Intel's SVML). On AVX-512 (a Zen 5
+EPYC, LLVM 22's znver5 target, read from ``inspect_asm`` of the RGB GGX conductor) both dtypes' loops use 512-bit
+zmm registers (8-wide float64, 16-wide float32 vsqrt/vdiv); there the kernel led Mitsuba's llvm variant by less
+than on AVX2 (docs/benchmarks.md), Mitsuba's float32 gaining more from the wider lanes. sqrt and division are
 correctly rounded in every width, so the values do not depend on the ISA.
 """
 
