@@ -22,17 +22,16 @@ The first call of a configuration and dtype compiles it (about 5 CPU s on the Ze
 keeps it on disk.
 
 What is ISA-specific: numba compiles for the host CPU (the disk cache is keyed by it), so the vector
-width and LLVM's inlining and vectorising decisions are the target's. On AVX2 (checked on a Zen 3 EPYC
-by reading the assembly) the GGX conductor loops use 4-wide float64 and 8-wide float32 vsqrt/vdiv;
-the dielectric and Schlick loops stayed scalar there (LLVM's remark: "the cost-model indicates that
-vectorization is not beneficial", likely the stride-3 loads against a cheaper body; splitting blocks
-into one array per component, tried for the conductor, vectorised it at the same speed as the
-interleaved loop, but was not tried for these), and Beckmann stays scalar on
-any target (libm exp and erfc; numba would vectorise them only through Intel's SVML). On AVX-512 (a Zen 5
-EPYC, LLVM 22's znver5 target, read from ``inspect_asm`` of the RGB GGX conductor) both dtypes' loops use 512-bit
-zmm registers (8-wide float64, 16-wide float32 vsqrt/vdiv); there the kernel led Mitsuba's llvm variant by less
-than on AVX2 (docs/benchmarks.md), Mitsuba's float32 gaining more from the wider lanes. sqrt and division are
-correctly rounded in every width, so the values do not depend on the ISA.
+width and LLVM's inlining and vectorising decisions are the target's. Every GGX configuration vectorises on
+AVX2 (4-wide float64, 8-wide float32 vsqrt/vdiv; read from ``inspect_asm`` with numba targeting znver3) and on
+AVX-512 (zmm registers, 8-wide float64, 16-wide float32; a Zen 5 EPYC, LLVM 22's znver5 target), provided the
+per-channel values reach the loop as tuples (see :func:`_params`): as arrays, the dielectric and Schlick loops
+stayed scalar on AVX2, and on AVX-512 every loop reloaded them through masked gathers and stored through
+scatters. Measured on one thread of the Zen 5 (1e6 RGB pairs): conductor 18 -> 7-8 ms, dielectric 9-12 -> 7 ms,
+Schlick 9-11 -> 3-4 ms; the AVX2 code on the same CPU: dielectric 34 -> 10 ms, Schlick 17 -> 6-7 ms, conductor
+unchanged at 11-12 ms. Beckmann stays scalar on any target (libm exp and erfc; numba would vectorise them only
+through Intel's SVML). sqrt and division are correctly rounded in every width, so the values do not depend on
+the ISA.
 """
 
 from __future__ import annotations
