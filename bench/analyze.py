@@ -11,9 +11,9 @@ by the ``gonio`` console script in a fresh process (``--quiet``, the default lad
 ``--jobs``), so the time includes the imports; the best of ``--repeats`` runs is kept (noise on a shared machine
 only ever adds time). Anchors measured in the same run: ``python -c pass`` (the interpreter's start) and, per
 source, the fit alone in this process (``load_and_fit``, its second call: the first loads scipy's solver, which
-``model.fit`` imports when it first solves, and the sources' modules), so "ratio to fit" reads as how much the report adds on
-top of the fitting; on a loaded machine wall time says little, so CPU time (user + system, forked workers
-included) is printed beside it, with the load average before each case. The first analysis of each source is
+``model.fit`` imports when it first solves, and the sources' modules), so "ratio to fit" reads as how much the
+report adds on top of the fitting; on a loaded machine wall time says little, so CPU time (user + system, forked
+workers included) is printed beside it, with the load average before each case. The first analysis of each source is
 untimed: it fills the page cache and Mitsuba's kernel cache, as any earlier analysis would have.
 
 Run: ``.venv/bin/python -m bench.analyze [--repeats R] [--no-write] [--run DIR] [--run-1000 DIR]``.
