@@ -1,7 +1,8 @@
-"""The ladder of candidate models: the names ``--models`` accepts, and fitting every candidate in turn.
+"""The ladder of candidate models: the names ``--models`` accepts, and fitting every candidate.
 
-Candidates are fitted one by one (each timed, its warnings captured for the report) and chosen among
-exactly as :func:`model.fit.select.select` chooses; ``select`` itself has no per-candidate hook, so the
+Candidates are fitted one by one (each timed, its warnings captured for the report), in this process or, with
+``jobs`` > 1, in two (this one and a forked helper, each taking the next candidate not yet taken), and chosen
+among exactly as :func:`model.fit.select.select` chooses; ``select`` itself has no per-candidate hook, so the
 loop lives here and the tests check it agrees with ``select``.
 """
 
