@@ -14,6 +14,7 @@ can be excellent where the data are and wrong away from them; the two numbers si
 from __future__ import annotations
 
 import math
+import textwrap
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -30,6 +31,8 @@ if TYPE_CHECKING:  # matplotlib loads only where a figure is drawn: fit.json rea
 
 Array = npt.NDArray[np.float64]
 MAX_THETA_DEG = 80.0
+#: Characters per line of the note that replaces the parameter panel (9 pt text in a 4-inch panel).
+WHY_NOT_CHARS = 48
 #: Grid of the hemisphere comparison: theta_i and theta_o steps (deg) and the relative azimuth step (deg).
 GRID_THETA_STEP_DEG, GRID_PHI_STEP_DEG = 5.0, 10.0
 
@@ -155,8 +158,10 @@ def truth_figure(cmp: TruthComparison) -> tuple[Figure, str]:
                  title="fitted against true parameters (grey: ±2σ)")  # fmt: skip
     else:
         left.set_axis_off()
-        left.text(0.5, 0.5, f"parameters not compared:\n{cmp.why_not}", ha="center", va="center", wrap=True,
-                  transform=left.transAxes, fontsize=9)  # fmt: skip
+        # Wrapped here to the panel's width: matplotlib's wrap=True wraps at the figure's edge, so a long reason
+        # ran across the right panel.
+        why = textwrap.fill(f"parameters not compared: {cmp.why_not}", width=WHY_NOT_CHARS)
+        left.text(0.5, 0.5, why, ha="center", va="center", transform=left.transAxes, fontsize=9)
     th, td = cmp.grid_half_diff
     order = np.argsort(cmp.grid_rel_error)
     sc = right.scatter(th[order], td[order], c=np.log10(np.maximum(cmp.grid_rel_error[order], 1e-4)), s=4,

@@ -184,3 +184,24 @@ def test_figures_drawn_side_by_side_are_the_same_bytes(conductor: Analysis, tmp_
     finally:
         stop.set()
         other.join()
+
+
+def test_the_note_that_replaces_the_parameter_panel_stays_inside_it() -> None:
+    # A fit of another Fresnel kind than the truth's says why its parameters are not compared; the reason is
+    # long, and wrapped at the figure's edge (matplotlib's wrap=True) it ran across the error map beside it.
+    from analysis.report_truth import TruthComparison, truth_figure
+
+    rng = np.random.default_rng(0)
+    why = ("the truth differs in the fields the fit holds fixed: fresnel = 'conductor' (fit: 'schlick'), "
+           "distribution = 'beckmann' (fit: 'ggx')")  # fmt: skip
+    cmp = TruthComparison("CookTorrance", None, why, 0.01, 0.02, (rng.uniform(0, 80, 50), rng.uniform(0, 80, 50)),
+                          rng.uniform(1e-3, 1e-1, 50))  # fmt: skip
+    fig, _ = truth_figure(cmp)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
+    left, right = fig.axes[0], fig.axes[1]
+    (note,) = left.texts
+    box, panel = note.get_window_extent(renderer), left.get_window_extent(renderer)
+    assert "fresnel = 'conductor'" in note.get_text().replace("\n", " ")
+    assert box.x0 >= panel.x0 and box.x1 <= panel.x1, (box, panel)
+    assert box.x1 < right.get_tightbbox(renderer).x0, "the note runs into the error map"
