@@ -90,6 +90,14 @@ with Standby(lambda: os.environ.__setitem__("PREPARED_IN", str(os.getpid()))) as
 assert prepared_in == str(ran_in) and ran_in != parent and value == [0, 3, 6] and "PREPARED_IN" not in os.environ
 with Standby(lambda: None) as standby:
     pass  # closed without work: the standby ends by itself
+# The standby's one call runs with the collector paused (its garbage ends with the process), and so does a draw
+# forked from it; the caller's collector is untouched.
+import gc
+from analysis.figure_pool import run_draws
+with Standby(lambda: None) as standby:
+    standby.run(lambda: (gc.isenabled(), run_draws([gc.isenabled, gc.isenabled], 2, lambda _: None)))
+    assert standby.result() == (False, [False, False])
+assert gc.isenabled()
 print("ok")
 """
 
