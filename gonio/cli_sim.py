@@ -7,7 +7,9 @@ module level), so the controller never depends on the stand-in hardware.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+from typing import Any
 
 from rig.instrument.clock import ScaledClock
 from rig.instrument.links.dynamixel_bus import SDK_BAUDRATES
@@ -79,44 +81,89 @@ def _grbl(args: argparse.Namespace) -> int:
     return 0
 
 
+def _resolution(text: str) -> tuple[int, int]:
+    """Parse ``WIDTHxHEIGHT`` sensor pixels."""
+    try:
+        w, h = (int(p) for p in text.lower().split("x"))
+    except ValueError:
+        w = h = 0
+    if not (8 <= w <= 16384 and 8 <= h <= 16384):
+        raise argparse.ArgumentTypeError(f"resolution {text!r}: expected WIDTHxHEIGHT pixels, e.g. 640x480, 8..16384")
+    return w, h
+
+
 def _rig(args: argparse.Namespace) -> int:
-    from dataclasses import replace
+    import threading
     from pathlib import Path
 
     from rig.run.config import load_rig, rig_config
     from rig.run.config_schema import RigFile
-    from simulator.camera.simulated import SimulatedCamera
-    from simulator.from_config import rig_from, spec_from
+    from simulator import rehearsal as r
 
     cfg = load_rig(args.rig) if args.rig else rig_config(RigFile(), "<built-in simulated rig>")
-    spec = replace(spec_from(cfg), time_scale=args.speed)
-    frames = Path(args.frames)
-    with rig_from(cfg, spec=spec) as sim:
-        # A RAW twin of the rig's camera: same scene and clock, frames written as DNG for any RAW reader.
-        raw = SimulatedCamera(
-            lambda: sim.radiance_now(full_frame=True), noise=spec.noise, optics=spec.optics, kind="raw",
-            clock=sim.clock, seed=spec.seed, dng_dir=frames, camera_id="gonio simulated camera (RAW)",
-        )  # fmt: skip
+    link = r.rehearsal_link(cfg, args.link)
+    spec = r.rehearsal_spec(cfg, link, resolution=args.resolution, speed=args.speed)
+    frames = Path(args.frames).resolve()
+    frames.mkdir(parents=True, exist_ok=True)
+    hardware = cfg.file.link.kind != "simulated"
+    roi = cfg.file.camera.roi if hardware else r.controller_roi(cfg, spec.camera.resolution)
+    with r.rehearsal_rig(cfg, link, spec) as sim:
+        tether = r.Tether(sim, frames, roi)
         _announce(sim.port)
+        if args.write_rig:
+            text = r.controller_rig_text(cfg, sim, link, frames, r.controller_roi(cfg, spec.camera.resolution))
+            Path(args.write_rig).write_text(text)
         ids = ",".join(str(a.address) for a in sim.axes)
-        what = (f"GRBL 1.1h axes {ids}" if cfg.file.simulation.link == "grbl"
-                else f"servos {ids}") + f" ({', '.join(a.name for a in sim.axes)})"  # fmt: skip
-        line = "115200 baud (home with $H first)" if cfg.file.simulation.link == "grbl" else f"{spec.baudrate} baud"
-        print(f"simulated rig {cfg.file.name!r}: {what} at {line}, time x{args.speed:g}; type 'capture SECONDS' "
-              f"for a DNG frame in {frames}, Ctrl-D or Ctrl-C stops", file=sys.stderr, flush=True)  # fmt: skip
-        for line in sys.stdin:
-            words = line.split()
-            if len(words) == 2 and words[0] == "capture":
-                try:
-                    raw.set_exposure(float(words[1]))
-                    raw.capture()
-                except ValueError as exc:
-                    print(f"error: {exc}", flush=True)
-                    continue
-                print(sorted(frames.glob("frame_*.dng"))[-1], flush=True)
-            elif words:
-                print(f"error: {line.strip()!r}: expected 'capture SECONDS'", flush=True)
+        what = (f"GRBL 1.1h axes {ids}" if link == "grbl" else f"servos {ids}") + \
+            f" ({', '.join(a.name for a in sim.axes)})"
+        line = "115200 baud (home with $H first)" if link == "grbl" else f"{spec.baudrate} baud"
+        w, h = spec.camera.resolution
+        print(f"simulated rig {cfg.file.name!r}: {what} at {line}, time x{args.speed:g}; a {w} x {h} RAW camera "
+              f"tethered to {frames} (it answers the folder camera's shot requests; type 'capture SECONDS' for a "
+              f"frame, 'scene {'|'.join(SCENE_WORDS)}' for what is on the stage); Ctrl-D or Ctrl-C stops",
+              file=sys.stderr, flush=True)  # fmt: skip
+        stop = threading.Event()
+        server = threading.Thread(target=tether.serve, args=(stop,), kwargs={"on_error": _announce}, daemon=True)
+        server.start()
+        try:
+            for text in sys.stdin:
+                _answer(tether, text)
+        finally:
+            stop.set()
+            server.join(timeout=10)
     return 0
+
+
+#: What ``scene`` takes on the rehearsal's input (``simulator.rehearsal.SCENES``; listed here for --help).
+SCENE_WORDS = ("sample", "tile", "board", "flat", "dark")
+
+
+def _answer(tether: Any, text: str) -> None:
+    """Do what one line of the rehearsal's input says, printing its answer (a frame's path, or an error)."""
+    words = text.split()
+    if not words:
+        return
+    try:
+        if words[0] == "capture" and len(words) == 2:
+            print(tether.shoot(_seconds(words[1])), flush=True)
+        elif words[0] == "scene" and len(words) == 2:
+            tether.set_scene(words[1])
+            print(f"scene {words[1]}", flush=True)
+        else:
+            print(f"error: {text.strip()!r}: expected 'capture SECONDS' or 'scene {'|'.join(SCENE_WORDS)}'", flush=True)
+    except ValueError as exc:
+        print(f"error: {text.strip()!r}: {exc}", flush=True)
+
+
+def _seconds(word: str) -> float:
+    """An exposure typed on the rehearsal's input: a positive, finite number of seconds."""
+    try:
+        value = float(word)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError("expected 'capture SECONDS' with SECONDS a positive number")
+    return value
 
 
 #: The material of ``gonio sim merl`` without --rig: a glossy paint (a diffuse base under a GGX dielectric coat).
@@ -174,15 +221,28 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     grbl.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
     grbl.set_defaults(func=_grbl)
     rig = kinds.add_parser(
-        "rig", help="the whole simulated rig: servos on a pty and a rendered camera writing DNG frames",
-        description="Brings up the rig file's virtual servos on a pseudo-terminal (first stdout line: its path) and "
-        "a camera rendered by Mitsuba from the pose the servos hold. Drive the servos with any Dynamixel client; "
-        "type 'capture 0.01' on stdin for a 10 ms RAW frame, written as DNG into --frames.",
-        epilog="Example: gonio sim rig --rig examples/rig_simulated.toml --frames out/frames",
+        "rig", help="a whole simulated rig for gonio's real backends: its link on a pty, a tethered RAW camera",
+        description="Rehearses a rig: serves the rig file's virtual servos (or virtual GRBL controller) on a "
+        "pseudo-terminal (first stdout line: its path) and, in place of the camera, a tethering program that "
+        "writes whole-sensor DNG frames into --frames, rendered by Mitsuba from the pose the axes physically hold. "
+        "A hardware rig file (link kind dynamixel or grbl, camera backend folder) then runs against it as against "
+        "the real rig, with [link] port and [camera] folder pointed here; a simulated rig file (its [simulation] "
+        "hidden from the controller) is served on --link, and --write-rig writes the hardware rig file for it. "
+        "Frames are shot when the folder camera leaves a shot request (a rig file without a trigger) or when "
+        "'capture SECONDS' is typed on stdin. What an operator puts on the stage is typed too: 'scene tile' (the "
+        "reference tile), 'scene board' (the ChArUco board), 'scene flat' (a uniform light before the lens), "
+        "'scene dark' (the lens cap), 'scene sample'.",
+        epilog="Example: gonio sim rig --rig examples/rig_dynamixel.toml --frames out/tether --speed 10",
     )  # fmt: skip
     rig.add_argument("--rig", help="rig file (TOML); default: the built-in simulated rig")
-    rig.add_argument("--frames", default="out/sim-frames", help="directory for DNG frames (default out/sim-frames)")
+    rig.add_argument("--link", choices=("dynamixel", "grbl"),
+                     help="for a simulated rig file: the link to serve (default its [simulation] link)")  # fmt: skip
+    rig.add_argument("--frames", default="out/sim-frames", help="hot folder for DNG frames (default out/sim-frames)")
     rig.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
+    rig.add_argument("--resolution", type=_resolution, metavar="WxH",
+                     help="sensor pixels (default: a simulated file's camera.resolution; for a hardware file the "
+                          "smallest sensor centred on its camera.roi)")  # fmt: skip
+    rig.add_argument("--write-rig", metavar="PATH", help="write the hardware rig file a controller uses here (TOML)")
     rig.set_defaults(func=_rig)
     merl = kinds.add_parser(
         "merl", help="write a MERL .binary file of a known material, to try gonio analyze on",

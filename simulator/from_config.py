@@ -14,10 +14,14 @@ from simulator.render.spec import CameraSpec, LightSpec
 from simulator.rig import SimRigSpec, SimulatedRig
 
 
-def spec_from(rig: RigConfig) -> SimRigSpec:
-    """A SimRigSpec from a validated rig file (link kind 'simulated')."""
+def spec_from(rig: RigConfig, *, camera: CameraSpec | None = None) -> SimRigSpec:
+    """A SimRigSpec from a validated rig file (link kind 'simulated').
+
+    ``camera`` stands in for the file's simulated camera: the rehearsal (:mod:`simulator.rehearsal`) serves a
+    hardware rig file, whose ``[camera]`` describes a real camera, and with it any link kind is taken.
+    """
     f = rig.file
-    if f.link.kind != "simulated":
+    if f.link.kind != "simulated" and camera is None:
         raise ConfigError(f"{rig.path}: link.kind = {f.link.kind!r}: the simulated rig needs 'simulated'")
     cam = f.camera
     sim = f.simulation
@@ -41,7 +45,7 @@ def spec_from(rig: RigConfig) -> SimRigSpec:
         geometry=rig.geometry,
         material=material_from(rig),
         light=light,
-        camera=CameraSpec(resolution=cam.resolution, roi=cam.roi, spp=cam.spp, variant=cam.variant),
+        camera=camera or CameraSpec(resolution=cam.resolution, roi=cam.roi, spp=cam.spp, variant=cam.variant),
         noise=noise,
         axes=rig.axes,
         baudrate=f.link.baudrate,

@@ -173,7 +173,7 @@ class SimulatedRig:
                 dng_dir = Path(self._dng_tmp.name)
             self.camera = SimulatedCamera(
                 self._patch, noise=self.spec.noise, optics=self.spec.optics, clock=self.clock,
-                seed=self.spec.seed, fixed_pattern_dn=self.spec.fixed_pattern_dn, state_key=self._state_key,
+                seed=self.spec.seed, fixed_pattern_dn=self.spec.fixed_pattern_dn, state_key=self.state_key,
                 stray_counts_per_s=self.spec.stray_light_counts_s,
                 camera_id=f"gonio simulated camera ({self.spec.material.__class__.__name__}, {self.material.plugin})",
                 kind="linear" if self.spec.camera_output == "linear" else "raw", response=self.spec.response,
@@ -259,16 +259,19 @@ class SimulatedRig:
         self._reading = None
         self._showing, self._shown = key, material
 
-    def _state_key(self) -> tuple[object, ...]:
+    def state_key(self) -> tuple[object, ...]:
+        """What the camera's noise stream is drawn for: where the joints stand, what is in view, which reading."""
         ticks = tuple(round(self.physical_units(a), 3) for a in self.axes)
         key: tuple[object, ...] = (ticks, repr(self._showing))
         if self.flat_source.state != "off":
             key = (*key, self.flat_source.state)
         return key if self._reading is None else (*key, self._reading)
 
-    def radiance_now(self, full_frame: bool = False) -> npt.NDArray[np.float64]:
-        """Radiance (W/(m^2 sr)) the camera sees now (the ROI, or the whole frame), from the servos' physical pose."""
-        return self._radiance(full_frame)
+    def radiance_now(
+        self, full_frame: bool = False, crop: tuple[int, int, int, int] | None = None
+    ) -> npt.NDArray[np.float64]:
+        """Radiance (W/(m^2 sr)) the camera sees now (the ROI, a ``crop`` box, or the whole frame), from the servos."""
+        return self._radiance(full_frame, crop)
 
     def lamp_factor(self) -> float:
         """The lamp's intensity now relative to its cold intensity (drift and warm-up at rig time)."""

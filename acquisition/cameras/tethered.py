@@ -18,6 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from acquisition.cameras import CameraError, ClockLike, RealTimeClock
+from acquisition.cameras.shot_request import withdraw_request, write_request
 from acquisition.files.images import read_frame
 from acquisition.files.metadata import DEFAULT_EXPOSURE_RTOL, check_exposure
 from acquisition.frame import ExposureSettings, Frame, FrameError
@@ -60,8 +61,10 @@ class TetheredFolderCamera:
         Time between two looks at the folder.
     trigger:
         Optional callable invoked at the start of each ``capture()`` with the requested settings, to
-        make the tethering software shoot. Without it, something else (the software's own timer, an
-        intervalometer, a person) must shoot; the camera only waits for the file.
+        make the tethering software shoot. Without it, something else (the software's own remote, a
+        lab's script, a person, the rehearsal rig of ``gonio sim rig``) must shoot: each capture after a
+        ``set_exposure`` leaves a shot request in the folder saying what to shoot
+        (:mod:`acquisition.cameras.shot_request`), and waits for the file.
     stable_polls:
         A file counts as completely written when its size and modification time are the same on this
         many consecutive polls. Writers that write to a temporary name and rename (``write_dng`` does)
@@ -115,6 +118,7 @@ class TetheredFolderCamera:
         self._requested_gain: float | None = None
         self._identity: str | None = None
         self._closed = False
+        self._shots = 0
         self._seen: set[str] = {p.name for p in self._matching()}
 
     # -- Camera protocol -------------------------------------------------------------------------
@@ -147,10 +151,26 @@ class TetheredFolderCamera:
         """
         if self._closed:
             raise CameraError(f"tethered camera at {self.folder} is closed")
+        request: Path | None = None
         if self.trigger is not None:
             if self._requested is None:
                 raise CameraError(f"tethered camera at {self.folder}: call set_exposure() before a triggered capture")
             self.trigger(self._requested)
+        elif self._requested is not None:
+            # Without a trigger something else shoots: tell it what (acquisition.cameras.shot_request).
+            try:
+                request = write_request(self.folder, self._requested, self._shots)
+            except OSError as exc:
+                raise CameraError(f"tethered camera: cannot leave a shot request in {self.folder}: {exc}") from exc
+        self._shots += 1
+        try:
+            return self._wait_for_file()
+        finally:
+            if request is not None:
+                withdraw_request(request)
+
+    def _wait_for_file(self) -> Frame:
+        """The next new, completely written file as a Frame (see ``capture``)."""
         start = self.clock.now()
         deadline = start + self.timeout_s
         # name -> (size, mtime_ns), consecutive identical observations
