@@ -10,6 +10,7 @@ import time
 import pytest
 
 from rig.instrument.clock import ManualClock
+from simulator.grbl import server as server_module
 from simulator.grbl.controller import VirtualGrbl
 from simulator.grbl.server import open_virtual_grbl, serve_grbl
 from tests.simulator.grbl.grbl_client import BANNER, Client
@@ -214,3 +215,38 @@ def test_receive_buffer_holds_all_128_bytes(grbl, clock):
     client.ser.write(b"~")
     client.run_until(lambda r: r.startswith("<Idle") and "Bf:15,128" in r)
     assert client.other.count("ok") == len(lines)
+
+
+def test_flushing_the_host_buffers_mid_move_is_not_a_reset(grbl, clock):
+    # pyserial's reset_input_buffer() / reset_output_buffer() drop bytes on the host; GRBL never sees them.
+    # Only opening the port (an Arduino's DTR reset) or 0x18 resets it.
+    client, sim = grbl
+    client.send("G1 X-10 F600")
+    clock.advance(0.5)
+    before = client.mpos()
+    assert client.state() == "Run" and -10.0 < before[0] < 0.0
+    client.ser.reset_input_buffer()
+    client.ser.reset_output_buffer()
+    assert client.state() == "Run" and client.mpos() == before  # no time passed: still there, still moving
+    assert BANNER not in client.other and sim.opens == 1
+    client.run_until(lambda r: r.startswith("<Idle"))
+    assert client.mpos() == (-10.0, 0.0, 0.0)  # the move went on to its end
+    client.ser.write(b"\x18")  # whereas a soft reset mid-session is one
+    assert client.read_until(lambda line: line == BANNER)[-1] == BANNER
+
+
+def test_without_inotify_an_open_after_a_hang_up_still_resets_and_a_flush_does_not(clock, monkeypatch):
+    # Where opens cannot be watched (not Linux), the only open the server can tell is one after nobody had the port.
+    monkeypatch.setattr(server_module._OpenWatch, "opened", lambda self: False)
+    with open_virtual_grbl(clock) as sim:
+        first = Client(sim.port, clock)
+        first.ser.reset_input_buffer()
+        assert first.state() == "Idle" and sim.opens == 1
+        first.close()
+        deadline = time.monotonic() + 30.0
+        while not sim.hung_up:  # the serving thread sees the port closed within a tick
+            assert time.monotonic() < deadline, "the server never saw the port closed"
+            time.sleep(0.001)
+        again = Client(sim.port, clock)
+        assert again.greeting[-1] == BANNER and sim.opens == 2
+        again.close()
