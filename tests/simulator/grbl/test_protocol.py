@@ -12,6 +12,7 @@ import pytest
 from rig.instrument.clock import ManualClock
 from simulator.grbl import server as server_module
 from simulator.grbl.controller import VirtualGrbl
+from simulator.grbl.noise import LineNoise
 from simulator.grbl.server import open_virtual_grbl, serve_grbl
 from tests.simulator.grbl.grbl_client import BANNER, Client
 
@@ -250,3 +251,29 @@ def test_without_inotify_an_open_after_a_hang_up_still_resets_and_a_flush_does_n
         again = Client(sim.port, clock)
         assert again.greeting[-1] == BANNER and sim.opens == 2
         again.close()
+
+
+def test_a_noisy_line_loses_or_garbles_replies_the_same_way_for_a_seed(grbl, clock):
+    client, sim = grbl
+    noise = sim.controller.noisy_line(drop=1.0)
+    client.ser.write(b"?G21\n")
+    assert client.readline(0.2) is None and noise.dropped == 2  # the report and the 'ok' are both lost
+    noise = sim.controller.noisy_line(garble=1.0, seed=5)
+    client.ser.write(b"G21\n")
+    line = client.ser.read_until(b"\n")
+    assert line.endswith(b"\r\n") and len(line) == 4 and sum(b >= 0x80 for b in line) == 1  # one byte is no character
+    sim.controller.noisy_line()  # a quiet line again
+    assert client.send("G21") == ["ok"]
+    first, again = ([n.carry(b"ok\r\n") for _ in range(40)] for n in (LineNoise(0.3, 0.2, 7), LineNoise(0.3, 0.2, 7)))
+    assert first == again and b"" in first and b"ok\r\n" in first and len(set(first)) > 2  # seeded: the same noise
+    with pytest.raises(ValueError, match="drop \\+ garble"):
+        sim.controller.noisy_line(drop=0.7, garble=0.5)
+
+
+def test_lost_acknowledgements_leave_the_lines_executed(grbl, clock):
+    client, sim = grbl
+    sim.controller.drop_acknowledgements(1)
+    client.ser.write(b"G1 X-2 F600\n")
+    assert client.readline(0.2) is None
+    client.run_until(lambda r: r.startswith("<Idle"))
+    assert client.mpos() == (-2.0, 0.0, 0.0) and client.send("G21") == ["ok"]
