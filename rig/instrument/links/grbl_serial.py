@@ -10,10 +10,10 @@ GRBL's 128-byte receive buffer (or what ``[OPT:...]`` reports), so nothing is ev
 queued. Real-time bytes (``?`` ``!`` ``~`` 0x18) bypass the buffer and are not counted.
 
 A noisy line loses replies (GRBL has no checksum). A lost status report is asked for again (``status_retries``
-times); lines left unanswered while GRBL reports Idle (or Alarm) in two polls running were done, their replies
-lost: ``GrblReplyLost`` says so at once instead of after ``command_timeout_s``, ``command(..., repeatable=True)``
-sends such a line again (``status_retries`` times), and ``replies_lost`` counts them. A corrupted report (a byte
-that is no character, an unknown state) is dropped, never read as another state.
+times); lines left unanswered while GRBL reports Idle (or Alarm) in polls over a quarter of a second were done,
+their replies lost: ``GrblReplyLost`` says so then instead of after ``command_timeout_s``,
+``command(..., repeatable=True)`` sends such a line again (``status_retries`` times), and ``replies_lost`` counts
+them. A corrupted report (a byte that is no character, an unknown state) is dropped, never read as another state.
 
 One file past 400 lines on purpose: the handshake, character counting, polling and reset handling share
 the session's receive buffer state.
@@ -53,6 +53,9 @@ RX_BUFFER_BYTES = 128
 _READ_SLICE_S = 0.01  # pyserial read timeout: the granularity of every wall-time wait
 _RESET = b"\x18"
 _UNPLUGGED = "is the cable or the controller unplugged?"
+#: Clock seconds GRBL has to answer a line it took in while Idle: milliseconds, or the ~50 ms of a '$$' dump
+#: at 115200 baud, whose 'ok' comes last (a report may slip in before it).
+_REPLY_WITHIN_S = 0.25
 _DWELL = re.compile(r"G0*4(?![0-9.])", re.IGNORECASE)  # G4 (G04): a dwell keeps GRBL Idle before its 'ok'
 # Alarms after which GRBL resets itself and prints its banner (3 and 6 are the result of a reset, not a cause).
 _RESET_FOLLOWS = frozenset({7, 8, 9, 10})
@@ -294,15 +297,16 @@ class GrblSession:
     def wait_for(self, done: Callable[[], bool], timeout_s: float, what: str, fresh: bool = False) -> None:
         """Poll ``?`` every ``poll_interval_s`` of clock time until ``done()``; ``GrblTimeoutError`` after.
 
-        Lines still unanswered while GRBL reports Idle (or Alarm) in two polls running were done (its main loop
-        is free then, and it answers a line as it takes it in): their replies were lost, and ``GrblReplyLost``
-        says so at once rather than after ``timeout_s`` (a dwell, the one line that idles unanswered, is waited
-        out).
+        Lines still unanswered while GRBL reports Idle (or Alarm) in polls running over ``_REPLY_WITHIN_S`` were
+        done (its main loop is free then, and it answers a line as it takes it in): their replies were lost, and
+        ``GrblReplyLost`` says so then rather than after ``timeout_s`` (a dwell, the one line that idles
+        unanswered, is waited out).
         """
         if not fresh and done():
             return
         deadline = self.clock.now() + timeout_s
         idle = 0
+        idle_since = 0.0
         while True:
             status = self.status()
             if done():
@@ -310,8 +314,12 @@ class GrblSession:
             self.check_not_halted()
             dwelling = any(_DWELL.search(text) for text, _ in self._inflight)
             free = status.state in ("Idle", "Alarm")  # GRBL's main loop takes lines in (Alarm answers error:9)
-            idle = idle + 1 if self._inflight and free and not dwelling else 0
-            if idle >= 2:
+            if self._inflight and free and not dwelling:
+                idle_since = idle_since if idle else self.clock.now()
+                idle += 1
+            else:
+                idle = 0
+            if idle >= 2 and self.clock.now() - idle_since >= _REPLY_WITHIN_S:
                 raise self._replies_lost()
             if self.clock.now() >= deadline:
                 raise GrblTimeoutError(f"GRBL on {self.port}: {what}: not done after {timeout_s:g} s ({status.state})")
