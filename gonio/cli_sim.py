@@ -68,16 +68,26 @@ def _servos(args: argparse.Namespace) -> int:
 
 def _grbl(args: argparse.Namespace) -> int:
     from simulator.grbl.server import serve_grbl
+    from simulator.grbl.settings import AXIS_DEFAULTS
+
+    settings: dict[int, float] | None = None
+    start: dict[str, float] | None = None
+    if args.homing:
+        # As a commissioned controller: locked at power-up until $H, the axes somewhere mid-travel ($130's half)
+        # rather than on their switches, so homing has a way to go.
+        settings = {22: 1.0}
+        start = dict.fromkeys(args.axes, -AXIS_DEFAULTS[3] / 2)
 
     def ready(port: str) -> None:
         _announce(port)
+        homing = "homing on ($22=1: in Alarm until $H)" if args.homing else "homing off"
         print(
-            f"virtual GRBL 1.1h: axes {args.axes}, 115200 baud, time x{args.speed:g}; Ctrl-C stops",
+            f"virtual GRBL 1.1h: axes {args.axes}, 115200 baud, {homing}, time x{args.speed:g}; Ctrl-C stops",
             file=sys.stderr,
             flush=True,
         )
 
-    serve_grbl(ScaledClock(args.speed), axes=args.axes, on_ready=ready)
+    serve_grbl(ScaledClock(args.speed), axes=args.axes, settings=settings, start_position=start, on_ready=ready)
     return 0
 
 
@@ -215,10 +225,18 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     )
     servos.set_defaults(func=_servos)
     grbl = kinds.add_parser(
-        "grbl", help="virtual GRBL 1.1 motion controller", epilog="Example: gonio sim grbl --axes XYZ"
+        "grbl", help="virtual GRBL 1.1 motion controller", epilog="Example: gonio sim grbl --axes XYZA --homing"
     )
     grbl.add_argument("--axes", default="XYZ", help="axis letters (default XYZ)")
     grbl.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
+    grbl.add_argument(
+        "--homing",
+        action="store_true",
+        help="homing enabled ($22=1) as on a commissioned rig: at power-up (every port open) the controller is in "
+        "Alarm until $H (or $X), with each axis's switch at machine 0 and the axes standing mid-travel; what a "
+        "gonio run's GRBL link needs (it homes before it moves and refuses a controller without homing). "
+        "Default: GRBL's factory settings (homing off, Idle at 0)",
+    )
     grbl.set_defaults(func=_grbl)
     rig = kinds.add_parser(
         "rig", help="a whole simulated rig for gonio's real backends: its link on a pty, a tethered RAW camera",

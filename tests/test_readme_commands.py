@@ -71,6 +71,7 @@ HOW: dict[str, tuple[str, str]] = {
         ("never", "HOST is a placeholder for a lab's scheduler, /shared a shared file system"),
     ".venv/bin/gonio sim servos --ids 1-4 --baud 1000000": ("serve", ""),
     ".venv/bin/gonio sim grbl --axes XYZ": ("serve", ""),
+    ".venv/bin/gonio sim grbl --axes XYZA --homing": ("serve", ""),
     ".venv/bin/gonio sim rig --rig examples/rig_simulated.toml": ("serve", ""),
     ".venv/bin/gonio sim rig --rig examples/rig_simulated_grbl.toml": ("serve", ""),
     ".venv/bin/gonio run examples/sweep_in_plane.toml --rig examples/rig_simulated_grbl.toml --out runs/gold-grbl":

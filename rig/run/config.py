@@ -284,14 +284,16 @@ def _axes(path: Path, cfg: RigFile, geometry: RigGeometry) -> tuple[Axis, ...]:
         if not letters and table.id is None:
             raise ConfigError(f"{path}: axes.{name}.letter = {table.letter!r}: expected id (a Dynamixel id 0..252)")
         lo, hi = geometry.limits.of(name)
-        upd, direction, zero = table.units_per_degree, table.direction, table.zero_offset_deg
+        upd = table.units_per_degree
+        direction = table.direction if table.direction is not None else 1
+        zero = table.zero_offset_deg if table.zero_offset_deg is not None else -180.0
         simulated = letters and traits.default_axes  # a simulated controller: what a table leaves out is the default's
         if simulated:
             d = defaults[name]
             lo, hi, upd = d.min_deg, d.max_deg, (d.units_per_degree if upd is None else upd)
         lo = lo if table.min_deg is None else table.min_deg
         hi = hi if table.max_deg is None else table.max_deg
-        if simulated and not {"direction", "zero_offset_deg"} & table.model_fields_set:
+        if simulated and table.direction is None and table.zero_offset_deg is None:
             direction, zero = grbl_homing(name, lo, hi, table.gear_ratio)
         if upd is None:
             if letters:

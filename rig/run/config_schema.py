@@ -135,8 +135,10 @@ class AxisTable(Strict):
     # Upper bounds far beyond any joint: they keep move-time and path arithmetic finite.
     units_per_degree: Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)] | None = None
     gear_ratio: Annotated[float, Field(gt=0, le=1e4, allow_inf_nan=False)] = 1.0
-    direction: Literal[1, -1] = 1
-    zero_offset_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] = -180.0
+    # None = left out (1 and -180 deg, or a simulated GRBL's homing): a run's manifest writes every default out,
+    # so "left out" must be a value that survives the dump, not a key missing from it.
+    direction: Literal[1, -1] | None = None
+    zero_offset_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] | None = None
     min_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] | None = None
     max_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] | None = None
     max_speed_deg_s: Annotated[float, Field(gt=0, le=1e5, allow_inf_nan=False)] = 60.0

@@ -18,6 +18,9 @@ Behaviour modelled on GRBL 1.1h:
 - soft limits (``$20=1``, which needs ``$22=1``) keep targets in GRBL's default machine space ``[-$130, 0]`` per axis
   (the homing switch at 0, ``$23`` direction bits included): a G-code target outside raises ALARM:2, a jog error:15.
 
+Faults on cue (the "fault injection" methods): a hard limit, a failed homing, a stall, status reports lost or late,
+``ok`` replies lost, and a noisy line that loses or garbles replies at random (seeded; ``simulator/grbl/noise.py``).
+
 Simplifications: every move accelerates from and stops at rest; homing moves all axes at once (GRBL does Z first,
 then X and Y), the report runs straight to the switch, and a failed homing reports no motion; work offsets are
 always zero (``$#`` reports zeros, so WPos = MPos); startup lines (``$Nx=``) and sleep (``$SLP``) answer
@@ -43,6 +46,7 @@ from simulator.grbl.core import (
     GrblCore,
 )
 from simulator.grbl.gcode import Alarm, Status, format_modal
+from simulator.grbl.noise import LineNoise
 
 HELP = "[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]"
 
@@ -136,6 +140,21 @@ class VirtualGrbl(GrblCore):
         """Answer the next ``count`` ``?`` queries late, each just before the next query's report (a busy line)."""
         with self._lock:
             self._late_reports += max(int(count), 0)
+
+    def drop_acknowledgements(self, count: int) -> None:
+        """Lose the next ``count`` ``ok`` replies on the line (the lines themselves are executed)."""
+        with self._lock:
+            self._drop_oks += max(int(count), 0)
+
+    def noisy_line(self, drop: float = 0.0, garble: float = 0.0, seed: int = 0) -> LineNoise:
+        """From now on each ``ok`` and status report is lost (``drop``) or garbled (``garble``); zeros end it.
+
+        Returns the noise, whose ``dropped`` and ``garbled`` count what it did (see ``simulator.grbl.noise``).
+        """
+        noise = LineNoise(drop, garble, seed)
+        with self._lock:
+            self._noise = noise if drop or garble else None
+        return noise
 
     def open_door(self) -> None:
         """The safety door opens (same as the 0x84 real-time byte)."""

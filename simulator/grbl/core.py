@@ -19,6 +19,7 @@ from collections.abc import Mapping
 from rig.instrument.clock import Clock, SystemClock
 from simulator.grbl.gcode import Alarm, GcodeError, LineAssembler, Modal, Status, parse_block
 from simulator.grbl.motion import MotionQueue, Move
+from simulator.grbl.noise import LineNoise
 from simulator.grbl.settings import AXIS_LETTERS, GrblSettings
 
 VERSION = "1.1h"
@@ -77,6 +78,8 @@ class GrblCore:
         self._drop_reports = 0
         self._late_reports = 0
         self._held_report: str | None = None  # a late report, sent just before the next one
+        self._noise: LineNoise | None = None  # what a noisy line does to replies ('ok' and status reports)
+        self._drop_oks = 0
         self.rx_dropped = 0  # bytes lost to a full receive buffer
         self.lines_received = 0  # complete lines the main loop has taken in
         self.rx_peak = 0  # most bytes ever waiting in the receive buffer
@@ -397,7 +400,13 @@ class GrblCore:
         return "<" + "|".join(parts) + ">"
 
     def _emit(self, text: str) -> None:
-        self._out += text.encode() + b"\r\n"
+        line = text.encode() + b"\r\n"
+        if text == "ok" and self._drop_oks:
+            self._drop_oks -= 1
+            return
+        if self._noise is not None and (text == "ok" or text.startswith("<")):
+            line = self._noise.carry(line)
+        self._out += line
 
     # ---- supplied by the subclass --------------------------------------------------------------------------
     def _system_command(self, line: str) -> None:

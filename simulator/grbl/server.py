@@ -7,10 +7,12 @@ lives in ``simulator/grbl/controller.py`` and its core modules; this module puts
   whose ``.port`` is the slave path to open with ``serial.Serial(port, 115200)`` and ``.controller`` the state;
 - ``serve_grbl(...)``: the same, blocking in the calling thread until a stop event or Ctrl-C (``gonio sim grbl``).
 
-Opening the port resets the controller and prints the banner, as an Arduino's auto-reset does: the server watches
-the pty master in packet mode, and the input flush pyserial performs on open is the "port opened" signal. So a
-client must not call ``reset_input_buffer()`` mid-session (it would reset the controller), and a client that opens
-the port without flushing gets no banner until it sends 0x18. Output is dropped while no client has the port open.
+Opening the port resets the controller and prints the banner, as an Arduino's auto-reset (DTR) does; nothing else
+but 0x18 does. A pty has no DTR, so the server watches for opens of the slave (inotify ``IN_OPEN`` on Linux; a
+hang-up, i.e. no client at all, where inotify is missing) and resets at the input flush pyserial performs on open,
+after which the banner can no longer be flushed away. A flush mid-session (``reset_input_buffer()``,
+``reset_output_buffer()``) drops bytes on the host only: the controller never notices. A client that opens the port
+without flushing gets no banner until it sends 0x18. Output is dropped while no client has the port open.
 
 Time comes from an injectable ``rig.instrument.clock.Clock``: share a ``ManualClock`` with the client in tests so
 polling advances the simulation, or use a ``ScaledClock`` to run faster than real time for an external program.
@@ -22,6 +24,7 @@ however late the serving thread runs on a loaded host.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import errno
 import fcntl
 import logging
@@ -43,6 +46,46 @@ __all__ = ["GrblPtyServer", "VirtualGrbl", "open_virtual_grbl", "serve_grbl"]
 
 _TIOCPKT_FLUSHREAD = 0x01
 _MAX_PENDING_OUTPUT = 1 << 16  # bytes kept for a client that stopped reading; older output is dropped
+_IN_OPEN = 0x20
+
+
+class _OpenWatch:
+    """Sees opens of a device path through inotify; where inotify is missing (not Linux) it sees none."""
+
+    def __init__(self, path: str) -> None:
+        self._fd = -1
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            fd = libc.inotify_init1(os.O_NONBLOCK | os.O_CLOEXEC)
+        except (OSError, AttributeError):
+            return
+        if fd < 0:
+            return
+        if libc.inotify_add_watch(fd, os.fsencode(path), _IN_OPEN) < 0:
+            os.close(fd)
+            return
+        self._fd = fd
+
+    def opened(self) -> bool:
+        """Whether the path was opened since the last call (drains the events)."""
+        seen = False
+        while self._fd >= 0:
+            try:
+                data = os.read(self._fd, 4096)
+            except BlockingIOError:
+                break
+            offset = 0
+            while offset + 16 <= len(data):  # struct inotify_event: wd, mask, cookie, len, then len bytes of name
+                _, mask, _, length = struct.unpack_from("iIII", data, offset)
+                seen = seen or bool(mask & _IN_OPEN)
+                offset += 16 + length
+        return seen
+
+    def close(self) -> None:
+        """Stop watching; safe to call twice."""
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
 
 
 class GrblPtyServer(Settling):
@@ -66,6 +109,9 @@ class GrblPtyServer(Settling):
         self._thread: threading.Thread | None = None
         self._out = bytearray()
         self._hung_up = True
+        self._opens = _OpenWatch(self.port)
+        # An open not yet answered with a reset: the reset waits for the open's flush, which would drop the banner.
+        self._open_pending = True
         self.opens = 0  # how many times a client opened the port (each one resets the controller)
         self.error: Exception | None = None  # what stopped the serving thread, if it crashed
         self._init_settling()
@@ -90,6 +136,7 @@ class GrblPtyServer(Settling):
         if self._master >= 0:
             os.close(self._master)
             self._master = -1
+        self._opens.close()
 
     def run(self) -> None:
         """Serve until ``stop()``: feed client bytes to the controller, advance it, write its replies."""
@@ -126,6 +173,11 @@ class GrblPtyServer(Settling):
                     self._handling = False
                     self._idle.notify_all()
 
+    @property
+    def hung_up(self) -> bool:
+        """Whether no client has the port open, as far as the serving thread has seen."""
+        return self._hung_up
+
     def _serving(self) -> bool:
         return self._alive()
 
@@ -149,6 +201,7 @@ class GrblPtyServer(Settling):
 
     def _on_hangup(self) -> None:
         self._hung_up = True
+        self._open_pending = True  # whoever comes next opens the port
         self._out.clear()
         self.controller.read_output()  # nobody is listening: GRBL's replies go nowhere
 
@@ -164,15 +217,19 @@ class GrblPtyServer(Settling):
             raise
         if not packet:
             return
+        opened = self._opens.opened()
         if packet[0] == 0:
             if len(packet) > 1:
                 self._hung_up = False  # someone is writing, so someone can read the replies
+                self._open_pending = False  # a client that talks without flushing first opened without a reset
                 self.controller.receive(packet[1:])
-        elif packet[0] & _TIOCPKT_FLUSHREAD:
-            # Every input flush counts as an open: a quick close-and-reopen may never show a hang-up.
+        elif packet[0] & _TIOCPKT_FLUSHREAD and (opened or self._open_pending):
+            # The flush of an open (a quick close-and-reopen may never show a hang-up, inotify sees it) resets.
             self._hung_up = False
+            self._open_pending = False
             self.opens += 1
             self.controller.power_on()
+        # Any other flush is the host dropping its own buffered bytes: GRBL never sees it.
 
     def _queue_output(self, data: bytes) -> None:
         if data and not self._hung_up:

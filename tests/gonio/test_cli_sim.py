@@ -66,6 +66,43 @@ def test_sim_grbl_answers_with_its_banner() -> None:
         assert _interrupt(proc) == 0
 
 
+def _lines_until(ser: serial.Serial, last: str, timeout_s: float = 30.0) -> list[str]:
+    """Lines from ``ser`` up to and including ``last`` (wall-clock bounded, never a blind sleep)."""
+    seen = b""
+    deadline = time.monotonic() + timeout_s
+    while last.encode() not in seen:
+        assert time.monotonic() < deadline, f"no {last!r} within {timeout_s} s; got {seen!r}"
+        seen += ser.read(256)
+    return [line.strip() for line in seen.decode().splitlines() if line.strip()]
+
+
+def test_sim_grbl_with_homing_starts_locked_and_a_link_homes_and_moves_on_it() -> None:
+    from rig.instrument.axis import Axis
+    from rig.instrument.clock import SystemClock
+    from rig.instrument.links.grbl import GrblLink
+
+    with gonio_sim("grbl", "--axes", "XY", "--homing", "--speed", "50") as (proc, port):
+        with serial.Serial(port, 115200, timeout=0.05) as ser:
+            # GRBL with homing enabled powers up locked, as a commissioned controller does.
+            greeting = _lines_until(ser, "[MSG:'$H'|'$X' to unlock]")
+            assert greeting[-2:] == ["Grbl 1.1h ['$' for help]", "[MSG:'$H'|'$X' to unlock]"]
+            ser.write(b"?")
+            assert _lines_until(ser, ">")[-1].startswith("<Alarm|")
+            ser.write(b"$$\n")
+            assert "$22=1" in _lines_until(ser, "ok")
+            ser.write(b"G1 X-1 F100\n")
+            assert _lines_until(ser, "error:9")[-1] == "error:9"  # G-code locked out until $H or $X
+        # The link homes (the axes stood mid-travel), then moves where it is told, counted from the switches.
+        axes = [Axis(name=n, address=n.upper(), units_per_degree=250.0, zero_offset_deg=0.0, min_deg=-150.0,
+                     max_deg=-1.0, max_speed_deg_s=8.0) for n in ("x", "y")]  # fmt: skip
+        with GrblLink(port, axes, clock=SystemClock(), poll_interval_s=0.002, require_home=True) as link:
+            link.move_to({"x": -20.0, "y": -5.0})
+            reached = link.wait_in_position(timeout_s=60.0)
+            assert reached == pytest.approx({"x": -20.0, "y": -5.0}, abs=0.004)
+            assert link.last_alarm is None and link.status().state == "Idle"
+        assert _interrupt(proc) == 0
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [

@@ -69,6 +69,11 @@ SELF_RESETTING_ALARMS = frozenset({3, 6, 7, 8, 9, 10})
 CRITICAL_ALARMS = frozenset({1, 2})
 POSITION_LOST_ALARMS = frozenset({1, 3, 6, 7, 8, 9, 10})
 
+#: Why a reply goes missing while the controller works on: what a lost reply's message says.
+REPLY_LOST = "the serial line is losing replies (electrical noise, a loose cable or connector, a USB hub?)"
+#: The states of a GRBL 1.1 status report; anything else is a corrupted report.
+STATES = frozenset({"Idle", "Run", "Hold", "Jog", "Alarm", "Door", "Check", "Home", "Sleep"})
+
 BANNER_RE = re.compile(r"^Grbl (\d+)\.(\d+)(\w*) \[.*\]\s*$")
 
 
@@ -82,6 +87,16 @@ class GrblConnectError(GrblError):
 
 class GrblTimeoutError(GrblError, TimeoutError):
     """The controller did not answer or finish within the timeout."""
+
+
+class GrblReplyLost(GrblTimeoutError):
+    """GRBL went Idle with ``lines`` done but never answered them: the replies were lost on the serial line."""
+
+    def __init__(self, port: str, lines: list[str]) -> None:
+        self.port, self.lines = port, lines
+        more = f" (and {len(lines) - 1} more)" if len(lines) > 1 else ""
+        super().__init__(f"GRBL on {port}: no reply to {lines[0]!r}{more} although GRBL went Idle with it done: "
+                         f"{REPLY_LOST}")  # fmt: skip
 
 
 class GrblResetError(GrblError):
@@ -190,6 +205,8 @@ def parse_status(line: str) -> GrblStatus:
         raise ValueError(f"not a GRBL status report: {line!r}")
     parts = line[1:-1].split("|")
     state, _, sub = parts[0].partition(":")
+    if state not in STATES:  # a corrupted byte must not turn 'Run' into a state that reads as stopped
+        raise ValueError(f"unknown state {state!r} in status report {line!r}")
     fields: dict[str, str] = {}
     for part in parts[1:]:
         key, sep, value = part.partition(":")

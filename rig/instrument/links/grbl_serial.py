@@ -9,6 +9,12 @@ Streaming counts the bytes (line + LF) sent and not yet answered by ``ok``/``err
 GRBL's 128-byte receive buffer (or what ``[OPT:...]`` reports), so nothing is ever dropped however many lines are
 queued. Real-time bytes (``?`` ``!`` ``~`` 0x18) bypass the buffer and are not counted.
 
+A noisy line loses replies (GRBL has no checksum). A lost status report is asked for again (``status_retries``
+times); lines left unanswered while GRBL reports Idle (or Alarm) in polls over a quarter of a second were done,
+their replies lost: ``GrblReplyLost`` says so then instead of after ``command_timeout_s``,
+``command(..., repeatable=True)`` sends such a line again (``status_retries`` times), and ``replies_lost`` counts
+them. A corrupted report (a byte that is no character, an unknown state) is dropped, never read as another state.
+
 One file past 400 lines on purpose: the handshake, character counting, polling and reset handling share
 the session's receive buffer state.
 """
@@ -16,6 +22,7 @@ the session's receive buffer state.
 from __future__ import annotations
 
 import logging
+import re
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
@@ -28,8 +35,10 @@ from rig.instrument.links.grbl_protocol import (
     BANNER_RE,
     CRITICAL_ALARMS,
     POSITION_LOST_ALARMS,
+    REPLY_LOST,
     GrblConnectError,
     GrblError,
+    GrblReplyLost,
     GrblResetError,
     GrblStatus,
     GrblTimeoutError,
@@ -44,6 +53,10 @@ RX_BUFFER_BYTES = 128
 _READ_SLICE_S = 0.01  # pyserial read timeout: the granularity of every wall-time wait
 _RESET = b"\x18"
 _UNPLUGGED = "is the cable or the controller unplugged?"
+#: Clock seconds GRBL has to answer a line it took in while Idle: milliseconds, or the ~50 ms of a '$$' dump
+#: at 115200 baud, whose 'ok' comes last (a report may slip in before it).
+_REPLY_WITHIN_S = 0.25
+_DWELL = re.compile(r"G0*4(?![0-9.])", re.IGNORECASE)  # G4 (G04): a dwell keeps GRBL Idle before its 'ok'
 # Alarms after which GRBL resets itself and prints its banner (3 and 6 are the result of a reset, not a cause).
 _RESET_FOLLOWS = frozenset({7, 8, 9, 10})
 
@@ -103,6 +116,7 @@ class GrblSession:
         self.position_lost = False
         self.generation = 0  # bumped by every reset and alarm: modal state and planned position must be re-read
         self.last_motion_line: str | None = None
+        self.replies_lost = 0  # 'ok'/'error:N' replies lost on the line (GRBL went Idle without sending them)
         try:
             self._ser: serial.Serial | None = serial.Serial(
                 port, baudrate=baudrate, timeout=_READ_SLICE_S, write_timeout=reply_timeout_s
@@ -111,7 +125,7 @@ class GrblSession:
             raise GrblConnectError(f"cannot open GRBL port {port!r}: {exc}") from exc
         try:
             self._handshake(reset_on_connect, baudrate)
-            for text in self.command("$I"):
+            for text in self.command("$I", repeatable=True):
                 fields = text[5:-1].split(",") if text.startswith("[OPT:") else []
                 if len(fields) >= 3 and fields[2].isdigit():
                     self.rx_buffer_bytes = int(fields[2])
@@ -171,7 +185,8 @@ class GrblSession:
                 return self._status
         tries = self._status_retries + 1
         raise GrblTimeoutError(
-            f"GRBL on {self.port}: no status report to {tries} '?' ({self._reply_timeout_s:g} s each)"
+            f"GRBL on {self.port}: no status report to {tries} '?' ({self._reply_timeout_s:g} s each); "
+            f"if it answers otherwise, {REPLY_LOST}"
         )
 
     def _take_waiting(self) -> None:
@@ -211,9 +226,28 @@ class GrblSession:
         timeout = timeout_s if timeout_s is not None else self.command_timeout_s
         self.wait_for(lambda: not self._inflight, timeout, "acknowledgement of queued lines")
 
-    def command(self, line: str, timeout_s: float | None = None) -> list[str]:
-        """Send one line after the queue drains and wait for ``ok``; returns the lines GRBL printed before it."""
+    def command(self, line: str, timeout_s: float | None = None, *, repeatable: bool = False) -> list[str]:
+        """Send one line after the queue drains and wait for ``ok``; returns the lines GRBL printed before it.
+
+        A ``repeatable`` line (one that does the same however often it runs, such as ``$$`` or ``G21 G90``) is
+        sent again when its reply is lost, ``status_retries`` times at most; any other raises ``GrblReplyLost``.
+        """
         timeout = timeout_s if timeout_s is not None else self.command_timeout_s
+        tries = self._status_retries + 1 if repeatable else 1
+        for attempt in range(1, tries + 1):
+            try:
+                return self._command_once(line, timeout)
+            except GrblReplyLost as exc:
+                if tries == 1:
+                    raise
+                if attempt == tries:
+                    raise GrblTimeoutError(f"GRBL on {self.port}: no reply to {line!r} although GRBL went Idle "
+                                           f"with it done, {tries} times: {REPLY_LOST}") from exc  # fmt: skip
+                log.warning("%s; sending it again", exc)
+        raise AssertionError("unreachable")
+
+    def _command_once(self, line: str, timeout: float) -> list[str]:
+        """``command`` without the retries: send after the queue drains, wait for the reply, the lines before it."""
         self.wait_acknowledged(timeout)
         self._data.clear()
         seq = self.send(line)
@@ -231,7 +265,7 @@ class GrblSession:
     def settings(self) -> dict[int, float]:
         """The ``$$`` settings by number."""
         values: dict[int, float] = {}
-        for text in self.command("$$"):
+        for text in self.command("$$", repeatable=True):
             key, sep, value = text.partition("=")
             if sep and key.startswith("$") and key[1:].isdigit():
                 values[int(key[1:])] = float(value.split()[0])
@@ -261,18 +295,44 @@ class GrblSession:
         return status
 
     def wait_for(self, done: Callable[[], bool], timeout_s: float, what: str, fresh: bool = False) -> None:
-        """Poll ``?`` every ``poll_interval_s`` of clock time until ``done()``; ``GrblTimeoutError`` after."""
+        """Poll ``?`` every ``poll_interval_s`` of clock time until ``done()``; ``GrblTimeoutError`` after.
+
+        Lines still unanswered while GRBL reports Idle (or Alarm) in polls running over ``_REPLY_WITHIN_S`` were
+        done (its main loop is free then, and it answers a line as it takes it in): their replies were lost, and
+        ``GrblReplyLost`` says so then rather than after ``timeout_s`` (a dwell, the one line that idles
+        unanswered, is waited out).
+        """
         if not fresh and done():
             return
         deadline = self.clock.now() + timeout_s
+        idle = 0
+        idle_since = 0.0
         while True:
             status = self.status()
             if done():
                 return
             self.check_not_halted()
+            dwelling = any(_DWELL.search(text) for text, _ in self._inflight)
+            free = status.state in ("Idle", "Alarm")  # GRBL's main loop takes lines in (Alarm answers error:9)
+            if self._inflight and free and not dwelling:
+                idle_since = idle_since if idle else self.clock.now()
+                idle += 1
+            else:
+                idle = 0
+            if idle >= 2 and self.clock.now() - idle_since >= _REPLY_WITHIN_S:
+                raise self._replies_lost()
             if self.clock.now() >= deadline:
                 raise GrblTimeoutError(f"GRBL on {self.port}: {what}: not done after {timeout_s:g} s ({status.state})")
             self.clock.sleep(self.poll_interval_s)
+
+    def _replies_lost(self) -> GrblReplyLost:
+        """Take the unanswered lines as done (their replies lost) and the exception that says so."""
+        lost = [text for text, _ in self._inflight]
+        self._inflight.clear()
+        self._inflight_bytes = 0
+        self._acked = self._sent
+        self.replies_lost += len(lost)
+        return GrblReplyLost(self.port, lost)
 
     def check_not_halted(self) -> None:
         """Raise if GRBL is halted by a critical alarm (it answers nothing but ``?`` and reset)."""

@@ -448,3 +448,42 @@ def test_a_late_status_report_is_never_taken_for_a_later_one(sim, clock):
         assert moving.state == "Run"
         assert moving.machine_position(None)[1] == pytest.approx(sim.controller.mpos["Y"], abs=1e-3)
         assert link.wait_in_position(30.0)["camera"] == pytest.approx(60.0, abs=0.05)
+
+
+def test_a_lost_ok_of_a_move_is_recovered_by_checking_the_axes_reached_the_target(link, sim, clock):
+    # A noisy line loses GRBL's 'ok' of a move it executed: the link must neither wait out command_timeout_s nor
+    # count the line in flight forever (no move would ever be in position again).
+    sim.controller.drop_acknowledgements(1)
+    start = clock.now()
+    link.move_to({"light": 10.0, "camera": -20.0})
+    assert link.wait_in_position(timeout_s=30.0) == pytest.approx({"light": 10.0, "camera": -20.0}, abs=0.05)
+    assert link.session.replies_lost == 1 and link.session.in_flight == 0
+    assert clock.now() - start < 0.25 * link.session.command_timeout_s  # noticed within a few polls once Idle
+    link.move_to({"light": 5.0})  # and the next move is counted as usual
+    assert link.wait_in_position(timeout_s=30.0)["light"] == pytest.approx(5.0, abs=0.05)
+
+
+def test_a_command_whose_ok_is_lost_is_sent_again_a_bounded_number_of_times(link, sim):
+    sim.controller.drop_acknowledgements(2)
+    assert link.session.settings()[100] == 10.0  # '$$' sent three times, answered the third
+    assert link.session.replies_lost == 2
+    sim.controller.drop_acknowledgements(10)
+    with pytest.raises(GrblTimeoutError, match=r"no reply to '\$\$' .*4 times.*losing replies"):
+        link.session.settings()
+    sim.controller.drop_acknowledgements(0)
+
+
+def test_homing_whose_ok_is_lost_is_done_once_grbl_is_idle(clock):
+    with open_virtual_grbl(clock, settings={22: 1}, start_position={"X": -60.0, "Y": -20.0}) as sim:
+        with connect(sim, clock, require_home=True) as link:
+            sim.controller.drop_acknowledgements(1)
+            link.home(timeout_s=60.0)  # a failed homing leaves Alarm, never Idle: Idle means it was done
+            assert link.status().state == "Idle" and sim.controller.mpos["X"] == -1.0
+            assert link.session.replies_lost == 1
+
+
+def test_a_garbled_state_is_no_state():
+    # A corrupted byte in 'Run' must not read as some other state (stop() would reset in motion, thinking it still).
+    for bad in ("<R\ufffdn|MPos:0,0,0|FS:0,0>", "<Idl|MPos:0,0,0|FS:0,0>"):
+        with pytest.raises(ValueError, match="state"):
+            parse_status(bad)

@@ -14,8 +14,11 @@ import pytest
 
 from gonio.cli import main
 from rig.instrument.links.grbl import GrblLink
+from rig.run import runner as runner_module
 from rig.run.config import load_rig, load_sweep
+from rig.run.runner import RunStopped
 from rig.run.session import resume_run, start_run
+from tests.run_helpers import read_rows
 
 pytestmark = pytest.mark.mitsuba
 
@@ -137,3 +140,46 @@ def test_a_damaged_journal_is_refused_naming_the_line(tmp_path: Path, capsys: py
     assert main(["resume", str(run), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert f"line {len(lines) + 1}: point " in err and f"already recorded on line {point + 1}" in err, err
+
+
+def _interrupt_after(readings: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Make the runner's ``readings``-th camera reading (references included) a Ctrl-C, as a SIGINT there would be."""
+    taken = 0
+    take = runner_module.take_reading
+
+    def reading(*args: object, **kwargs: object) -> object:
+        nonlocal taken
+        taken += 1
+        if taken == readings:
+            raise KeyboardInterrupt
+        return take(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(runner_module, "take_reading", reading)
+
+
+def test_a_grbl_run_interrupted_past_a_reference_resumes_to_the_uninterrupted_table(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The shipped GRBL rig's tilt table names only its gear (and speed): what it leaves out (the switch beyond the
+    # limit) must stay left out in the manifest a resume rebuilds the rig from, or the resumed tilt counts steps
+    # from another zero and every point after the interruption lands on another step grid.
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG.format(link="grbl").replace("every = 7", "every = 5") + '[axes.tilt]\nletter = "Z"\n'
+                   "gear_ratio = 3.0\nmax_speed_deg_s = 30.0\n")  # fmt: skip
+    sweep = tmp_path / "sweep.toml"
+    sweep.write_text(SWEEP.replace("[15.0, 40.0, 65.0]", "[20.0, 50.0]"))
+    reference = start_run(load_rig(rig), load_sweep(sweep), tmp_path / "whole", progress=False)
+    run = tmp_path / "interrupted"
+    # Readings: the reference, points 0-4, the reference at 5, point 5, then Ctrl-C during point 6's.
+    _interrupt_after(9, monkeypatch)
+    with pytest.raises(RunStopped) as stopped:
+        start_run(load_rig(rig), load_sweep(sweep), run, progress=False)
+    assert stopped.value.cause == "interrupted"
+    monkeypatch.undo()
+    resumed = resume_run(run, progress=False)
+    assert (resumed.already, resumed.measured + resumed.already) == (6, reference.measured)
+    got, want = read_rows(resumed.table), read_rows(reference.table)
+    assert len(got) == len(want) == reference.measured
+    for column in want[0]:
+        if column != "utc":  # when each point was really measured
+            assert [r[column] for r in got] == [r[column] for r in want], column

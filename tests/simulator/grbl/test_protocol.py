@@ -10,7 +10,9 @@ import time
 import pytest
 
 from rig.instrument.clock import ManualClock
+from simulator.grbl import server as server_module
 from simulator.grbl.controller import VirtualGrbl
+from simulator.grbl.noise import LineNoise
 from simulator.grbl.server import open_virtual_grbl, serve_grbl
 from tests.simulator.grbl.grbl_client import BANNER, Client
 
@@ -214,3 +216,64 @@ def test_receive_buffer_holds_all_128_bytes(grbl, clock):
     client.ser.write(b"~")
     client.run_until(lambda r: r.startswith("<Idle") and "Bf:15,128" in r)
     assert client.other.count("ok") == len(lines)
+
+
+def test_flushing_the_host_buffers_mid_move_is_not_a_reset(grbl, clock):
+    # pyserial's reset_input_buffer() / reset_output_buffer() drop bytes on the host; GRBL never sees them.
+    # Only opening the port (an Arduino's DTR reset) or 0x18 resets it.
+    client, sim = grbl
+    client.send("G1 X-10 F600")
+    clock.advance(0.5)
+    before = client.mpos()
+    assert client.state() == "Run" and -10.0 < before[0] < 0.0
+    client.ser.reset_input_buffer()
+    client.ser.reset_output_buffer()
+    assert client.state() == "Run" and client.mpos() == before  # no time passed: still there, still moving
+    assert BANNER not in client.other and sim.opens == 1
+    client.run_until(lambda r: r.startswith("<Idle"))
+    assert client.mpos() == (-10.0, 0.0, 0.0)  # the move went on to its end
+    client.ser.write(b"\x18")  # whereas a soft reset mid-session is one
+    assert client.read_until(lambda line: line == BANNER)[-1] == BANNER
+
+
+def test_without_inotify_an_open_after_a_hang_up_still_resets_and_a_flush_does_not(clock, monkeypatch):
+    # Where opens cannot be watched (not Linux), the only open the server can tell is one after nobody had the port.
+    monkeypatch.setattr(server_module._OpenWatch, "opened", lambda self: False)
+    with open_virtual_grbl(clock) as sim:
+        first = Client(sim.port, clock)
+        first.ser.reset_input_buffer()
+        assert first.state() == "Idle" and sim.opens == 1
+        first.close()
+        deadline = time.monotonic() + 30.0
+        while not sim.hung_up:  # the serving thread sees the port closed within a tick
+            assert time.monotonic() < deadline, "the server never saw the port closed"
+            time.sleep(0.001)
+        again = Client(sim.port, clock)
+        assert again.greeting[-1] == BANNER and sim.opens == 2
+        again.close()
+
+
+def test_a_noisy_line_loses_or_garbles_replies_the_same_way_for_a_seed(grbl, clock):
+    client, sim = grbl
+    noise = sim.controller.noisy_line(drop=1.0)
+    client.ser.write(b"?G21\n")
+    assert client.readline(0.2) is None and noise.dropped == 2  # the report and the 'ok' are both lost
+    noise = sim.controller.noisy_line(garble=1.0, seed=5)
+    client.ser.write(b"G21\n")
+    line = client.ser.read_until(b"\n")
+    assert line.endswith(b"\r\n") and len(line) == 4 and sum(b >= 0x80 for b in line) == 1  # one byte is no character
+    sim.controller.noisy_line()  # a quiet line again
+    assert client.send("G21") == ["ok"]
+    first, again = ([n.carry(b"ok\r\n") for _ in range(40)] for n in (LineNoise(0.3, 0.2, 7), LineNoise(0.3, 0.2, 7)))
+    assert first == again and b"" in first and b"ok\r\n" in first and len(set(first)) > 2  # seeded: the same noise
+    with pytest.raises(ValueError, match="drop \\+ garble"):
+        sim.controller.noisy_line(drop=0.7, garble=0.5)
+
+
+def test_lost_acknowledgements_leave_the_lines_executed(grbl, clock):
+    client, sim = grbl
+    sim.controller.drop_acknowledgements(1)
+    client.ser.write(b"G1 X-2 F600\n")
+    assert client.readline(0.2) is None
+    client.run_until(lambda r: r.startswith("<Idle"))
+    assert client.mpos() == (-2.0, 0.0, 0.0) and client.send("G21") == ["ok"]
