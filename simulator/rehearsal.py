@@ -135,6 +135,8 @@ class Tether:
         self.scene = "sample"
         self.lock = threading.Lock()
         self.written: list[Path] = []
+        # A camera's counter goes on across sessions: a name already in the folder is one a watcher has seen.
+        self.shots = max((int(p.stem[4:]) for p in folder.glob("IMG_*.dng") if p.stem[4:].isdigit()), default=0)
         spec = sim.spec
         self.sensor = spec.camera.resolution
         self.camera = SimulatedCamera(
@@ -185,7 +187,8 @@ class Tether:
         with self.lock:
             self.camera.set_exposure(exposure_s, gain)
             frame = self._whole(self.camera.capture())
-            path = self.folder / f"IMG_{len(self.written) + 1:06d}.dng"
+            self.shots += 1
+            path = self.folder / f"IMG_{self.shots:06d}.dng"
             self.folder.mkdir(parents=True, exist_ok=True)
             write_dng(path, frame, exposure_s=frame.exposure_s, iso=100.0 * frame.gain, camera_id=self.camera.identity)
             self.written.append(path)
