@@ -15,8 +15,8 @@ from acquisition.board import ChArUcoBoard
 from rig.alignment.fit import CalibrationError, Capture, fit_geometry
 from rig.alignment.model import coat_peak, predict
 from rig.alignment.observe import FrameObservation, Highlight, find_highlight
-from rig.alignment.poses import PoseError, mirror_joints, plan_poses
-from rig.instrument.alignment import PARAMETERS, Alignment, alignment_of, parameters_of
+from rig.alignment.poses import PoseError, mirror_joints, plan_poses, wrapped
+from rig.instrument.alignment import PARAMETERS, Alignment, aligned_forward, alignment_of, parameters_of
 from rig.instrument.camera_model import focal_length_px
 from rig.instrument.geometry import RigGeometry
 
@@ -145,6 +145,36 @@ def test_parameters_and_alignments_round_trip_for_every_layout() -> None:
 def test_too_few_captures_are_refused() -> None:
     with pytest.raises(PoseError, match="at least 8 captures"):
         plan_poses(RigGeometry(), 5)
+
+
+@pytest.mark.parametrize("captures", [30, 40])
+@pytest.mark.parametrize("roll_zero_deg", [-15.0, 15.0])
+def test_mirror_rolls_past_a_half_turn_are_wrapped_into_the_rolls_limits(captures: int, roll_zero_deg: float) -> None:
+    # The mirror poses spread the roll to within 180 / n of +-180 deg: a stage whose roll zero is 15 deg off puts the
+    # first or last one past a half turn, which is the same pose a whole turn back (it was refused as beyond limits).
+    g = RigGeometry()
+    poses = plan_poses(g, captures)
+    estimate = Alignment(roll_zero_deg=roll_zero_deg, light_zero_deg=0.5, sample_tilt_deg=0.6)
+    joints = mirror_joints(g, poses, estimate)
+    rolls = np.array([j.roll for j in joints])
+    assert np.all((rolls >= -180.0) & (rolls <= 180.0)), rolls
+    # The wrapped roll is the solver's own (the drawn roll shifted by the zero) a whole turn away.
+    edge = 0 if roll_zero_deg < 0 else -1
+    drawn = -(180.0 - 360.0 * (0.5 if edge == 0 else len(rolls) - 0.5) / len(rolls))
+    assert abs(drawn + roll_zero_deg) > 180.0
+    assert rolls[edge] == pytest.approx(drawn + roll_zero_deg - math.copysign(360.0, roll_zero_deg), abs=0.5)
+    for j, wi, wo in zip(joints, poses.mirror_wi, poses.mirror_wo, strict=True):
+        d = aligned_forward(g, j, estimate)
+        assert np.allclose(d.wi, wi, atol=1e-8) and np.allclose(d.wo, wo, atol=1e-8)
+
+
+def test_a_joint_angle_is_wrapped_by_whole_turns_only_where_its_limits_allow() -> None:
+    assert wrapped(-307.0, -180.0, 180.0) == pytest.approx(53.0)
+    assert wrapped(187.74, -180.0, 180.0) == pytest.approx(-172.26)
+    assert wrapped(-300.0, -90.0, 90.0) == pytest.approx(60.0)
+    assert wrapped(200.0, -90.0, 90.0) == 200.0  # no whole turn brings it inside: left for the limit check to name
+    assert wrapped(370.0, -720.0, 720.0) == 370.0  # inside already: the nearest turn is none
+    assert wrapped(-170.0, -180.0, 180.0) == -170.0
 
 
 def test_the_highlight_peak_is_found_to_a_fraction_of_a_pixel() -> None:
