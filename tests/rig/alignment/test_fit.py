@@ -14,7 +14,7 @@ import pytest
 from acquisition.board import ChArUcoBoard
 from rig.alignment.fit import CalibrationError, Capture, fit_geometry
 from rig.alignment.model import coat_peak, predict
-from rig.alignment.observe import FrameObservation, Highlight, find_highlight
+from rig.alignment.observe import FrameObservation, Highlight, find_highlight, observe
 from rig.alignment.poses import PoseError, mirror_joints, plan_poses, wrapped
 from rig.instrument.alignment import PARAMETERS, Alignment, aligned_forward, alignment_of, parameters_of
 from rig.instrument.camera_model import focal_length_px
@@ -189,6 +189,34 @@ def test_the_highlight_peak_is_found_to_a_fraction_of_a_pixel() -> None:
     edge = 500.0 * np.exp(-((x - 1.0) ** 2 + (y - 27.8) ** 2) / (2 * 3.0**2)) + 5.0
     assert find_highlight(edge, edge)[1].startswith("the highlight touches the frame's edge")
     assert find_highlight(np.full((20, 20), 5.0), np.ones((20, 20)))[0] is None
+
+
+def _board_frame(stray: float, spot: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """A board pose's frame (counts/s) and variance: the print under a beam falling 5 % to its edge, set in
+    surroundings that only stray light reaches, and a lamp's highlight of ``spot`` times the white at (300, 290)."""
+    printed = BOARD.image(6.0).astype(np.float64) / 255.0
+    frame = np.full((600, 600), stray)
+    y, x = np.mgrid[0:600, 0:600] + 0.5
+    dome = 1.0 - 0.05 * ((x - 300.0) ** 2 + (y - 300.0) ** 2) / 300.0**2
+    n = printed.shape[0]
+    o = (600 - n) // 2
+    frame[o : o + n, o : o + n] += 1e5 * (0.04 + 0.86 * printed) * dome[o : o + n, o : o + n]
+    frame += spot * 1e5 * np.exp(-((x - 300.3) ** 2 + (y - 290.6) ** 2) / (2 * 4.0**2))
+    return frame, frame / 4.0 + 9.0
+
+
+@pytest.mark.parametrize("stray", [0.0, 20.0])
+def test_a_board_pose_without_the_lamps_highlight_keeps_its_corners(stray: float) -> None:
+    # Surroundings lit by stray light (examples/rig_misaligned.toml: 20 counts/s) made the whole frame's median
+    # thousands of times below the print: the white print's domed brightest pixel passed as a highlight, whose
+    # "glare" then took every corner (7 of 15 board captures found none).
+    frame, var = _board_frame(stray)
+    seen = observe(frame, var, BOARD)
+    assert seen.highlight is None and "below" in seen.note
+    assert len(seen.corner_ids) >= 20
+    lit, lit_var = _board_frame(stray, spot=100.0)
+    found = observe(lit, lit_var, BOARD, corners=False).highlight
+    assert found is not None and (found.x, found.y) == (pytest.approx(300.3, abs=0.05), pytest.approx(290.6, abs=0.05))
 
 
 def test_the_coats_peak_leans_off_the_mirror_point_by_a_fraction_of_a_pixel() -> None:
