@@ -3,11 +3,11 @@
 The input is an HDR frame (radiance and variance per pixel, counts/s). The board's corners come from
 OpenCV's ChArUco detector on a tone-mapped 8-bit copy (sub-pixel refined; about 0.05-0.1 px on a clean
 image). The highlight is the mirror image of the lamp in the board's coat: the brightest spot, many times
-the printed pattern's level. Its position is the peak of a quadratic fitted to the logarithm of the
-spot's light above the local background over its half-maximum region (a GGX lobe is close to Gaussian
-near its peak), weighted by the pixels' own variance; its standard error is that fit's. A highlight that
-touches the frame's edge, is too faint against the pattern, or spans too few pixels is not used (and the
-reason is kept).
+the printed pattern's level (the board's median, the surroundings left out). Its position is the peak of a
+quadratic fitted to the logarithm of the spot's light above the local background over its half-maximum
+region (a GGX lobe is close to Gaussian near its peak), weighted by the pixels' own variance; its standard
+error is that fit's. A highlight that touches the frame's edge, is too faint against the pattern, or spans
+too few pixels is not used (and the reason is kept).
 """
 
 from __future__ import annotations
@@ -21,8 +21,13 @@ from acquisition.board import ChArUcoBoard
 
 FloatArray = npt.NDArray[np.float64]
 
-#: The highlight must be this many times brighter than the board's typical (median) level.
-MIN_CONTRAST = 8.0
+#: The highlight must be this many times brighter than the board's typical (median) level. A board pose's
+#: brightest pixel (the white print, domed by the beam's falloff) is 1.1-1.2x it, the lamp's highlight 100x in a
+#: GGX alpha 0.01 coat and 7x in an alpha 0.03 one (rendered on examples/rig_misaligned.toml).
+MIN_CONTRAST = 4.0
+#: Pixels below this fraction of the print's bright level (the 90th percentile) are not the board: the lamp
+#: lights even the black print at ~4 % of the white, while the surroundings see only stray light.
+BOARD_FLOOR = 0.01
 #: Corners closer to the highlight than this many half-maximum radii are not used (see observe).
 GLARE_RADII = 6.0
 
@@ -64,11 +69,16 @@ def find_highlight(luminance: FloatArray, variance: FloatArray) -> tuple[Highlig
     if lit.size == 0:
         return None, "the frame is black"
     background = float(np.median(lit))
+    # The contrast is against the board alone: surroundings lit by stray light made the median of the whole frame
+    # thousands of times below the print, so a board pose's white print passed as a highlight (and its "glare"
+    # then took every corner).
+    board = lit[lit > BOARD_FLOOR * float(np.percentile(lit, 90))]
+    level = float(np.median(board)) if board.size else background
     finite = np.where(np.isfinite(luminance), luminance, 0.0)
     iy, ix = (int(i) for i in np.unravel_index(int(np.argmax(finite)), finite.shape))
     peak = float(finite[iy, ix])
-    if peak < MIN_CONTRAST * background:
-        return None, f"no highlight: the brightest pixel is {peak / background:.1f}x the board, below {MIN_CONTRAST:g}x"
+    if peak < MIN_CONTRAST * level:
+        return None, f"no highlight: the brightest pixel is {peak / level:.1f}x the board, below {MIN_CONTRAST:g}x"
     return peak_of(finite - background, variance, iy, ix, peak)
 
 

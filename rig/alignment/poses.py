@@ -15,6 +15,7 @@ Layouts whose stage cannot tilt or roll see the board from the arms' angles only
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,13 +90,26 @@ def plan_poses(geometry: RigGeometry, captures: int) -> CalibrationPoses:
     return CalibrationPoses(board, wi, wo)
 
 
+def wrapped(value: float, lo: float, hi: float) -> float:
+    """A joint angle (deg) turned by whole turns into [lo, hi], the turn nearest ``value`` if several fit.
+
+    A revolute joint stands the same at a and a + 360 k: the solver's angle is a solution wherever it lands, but
+    the axis can only go where its limits allow. Unchanged where no turn brings it inside.
+    """
+    turns = np.arange(math.ceil((lo - value) / 360.0), math.floor((hi - value) / 360.0) + 1)
+    if not turns.size:
+        return value
+    return float(value + 360.0 * turns[np.argmin(np.abs(turns))])
+
+
 def mirror_joints(geometry: RigGeometry, poses: CalibrationPoses, estimate: Alignment) -> tuple[Joints, ...]:
     """Joints (degrees) that put the lamp's mirror image near the image centre on the rig ``estimate`` describes."""
     joints, miss = aligned_inverse(geometry, poses.mirror_wi, poses.mirror_wo, estimate)
     values = joints.as_dict()
     out = []
     for i in range(len(poses.mirror_wi)):
-        j = Joints.from_dict({n: float(np.asarray(values[n])[i]) for n in values})
+        # Gauss-Newton from the drawn rig's roll may step past +-180 deg (roll -307 for 53 was seen): same pose.
+        j = Joints.from_dict({n: wrapped(float(np.asarray(values[n])[i]), *geometry.limits.of(n)) for n in values})
         for name, value in j.as_dict().items():
             lo, hi = geometry.limits.of(name)
             if not lo <= float(value) <= hi:

@@ -32,6 +32,7 @@ from rig.instrument.calibration_file import FILE_NAME, sha256_of, write_geometry
 from rig.instrument.camera_model import focal_length_px
 from rig.instrument.kinematics import Joints
 from rig.run.config import RigConfig
+from rig.run.registry import provided_cameras
 from rig.run.session import instruments
 
 Log = Callable[[str], None]
@@ -43,11 +44,38 @@ def _stderr(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
-def square_px(rig: RigConfig, board: ChArUcoBoard) -> float:
-    """How many pixels one board square spans in the camera's image, seen face on."""
-    g, (w, h) = rig.geometry, rig.file.camera.resolution
+def square_px(rig: RigConfig, board: ChArUcoBoard, size: tuple[int, int]) -> float:
+    """How many pixels one board square spans, seen face on, in a frame of ``size`` (width, height) pixels."""
+    g, (w, h) = rig.geometry, size
     view_mm = 2e3 * g.camera_radius_m * math.tan(math.radians(0.5 * g.camera_fov_deg))
     return board.square_mm * min(w, h) / view_mm
+
+
+def check_square(rig: RigConfig, board: ChArUcoBoard, size: tuple[int, int], *, delivered: bool) -> None:
+    """Refuse a frame of ``size`` (width, height) px whose board squares are too small for the detector.
+
+    ``delivered``: the size is what the camera delivered (a real camera's frame size is not a rig file key), not
+    the simulated camera's ``resolution``.
+    """
+    need = square_px(rig, board, size)
+    if need >= MIN_SQUARE_PX:
+        return
+    (w, h), g = size, rig.geometry
+    factor = math.ceil(MIN_SQUARE_PX / need)
+    seen = (
+        f"a {board.square_mm:g} mm board square spans {need:.1f} px (at camera_radius_m {g.camera_radius_m:g}, "
+        f"camera_fov_deg {g.camera_fov_deg:g}); geometry calibration needs at least {MIN_SQUARE_PX:g} px"
+    )
+    if not delivered:
+        raise CalibrationError(
+            f"{rig.path}: camera.resolution = [{w}, {h}]: {seen}: use a resolution of at least [{w * factor}, "
+            f"{h * factor}] (a run renders only its ROI, so a larger resolution costs it little)"
+        )
+    raise CalibrationError(
+        f"{rig.path}: the {rig.file.camera.backend} camera delivered a frame of {w} x {h} px: {seen}: the camera must "
+        f"deliver whole frames of at least {w * factor} x {h * factor} px (its full sensor, not a crop or a preview), "
+        f"or a board with squares {factor}x larger"
+    )
 
 
 def hdr_frame(camera: Camera, noise: SensorNoise, *, first_s: float = 0.01, max_s: float = 10.0) -> HdrImage:
@@ -146,16 +174,9 @@ def calibrate_geometry(
     """Run the calibration on ``rig`` and write ``out/geometry_calibration.json``; returns its path."""
     board = board or ChArUcoBoard()
     say = log or _stderr
-    need = square_px(rig, board)
-    if need < MIN_SQUARE_PX:
-        w, h = rig.file.camera.resolution
-        factor = math.ceil(MIN_SQUARE_PX / need)
-        raise CalibrationError(
-            f"{rig.path}: camera.resolution = [{w}, {h}]: a {board.square_mm:g} mm board square spans {need:.1f} px "
-            f"(at {rig.geometry.camera_radius_m:g} m, camera_fov_deg {rig.geometry.camera_fov_deg:g}); geometry "
-            f"calibration needs at least {MIN_SQUARE_PX:g} px: use a resolution of at least [{w * factor}, "
-            f"{h * factor}] (a run renders only its ROI, so a larger resolution costs it little)"
-        )
+    rendered = rig.file.camera.backend in provided_cameras()
+    if rendered:  # the simulated camera renders [camera] resolution: refused before anything moves
+        check_square(rig, board, rig.file.camera.resolution, delivered=False)
     if not 1e-4 <= alpha <= 0.3:
         raise CalibrationError(f"--alpha {alpha!r}: expected the coat's GGX roughness in [1e-4, 0.3]")
     poses = plan_poses(rig.geometry, captures)
@@ -176,6 +197,8 @@ def calibrate_geometry(
             inst.board.present_board(board, alpha)
             for i, joints in enumerate(poses.board):
                 cap, hdr = _capture(camera, noise, inst.link, joints, board, timeout)
+                if i == 0 and not rendered:  # a real camera's frame size is what it delivers, not a rig file key
+                    check_square(rig, board, _size(hdr), delivered=True)
                 caps.append(cap)
                 hdrs.append(hdr)
                 kinds.append("board")

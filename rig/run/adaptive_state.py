@@ -16,8 +16,7 @@ from typing import Any
 
 from acquisition.files.atomic import atomic_path
 from rig.instrument.calibration_file import GeometryCalibration
-from rig.run.config import RigConfig, parse, rig_config
-from rig.run.config_schema import RigFile
+from rig.run.config import RigConfig, as_table, rig_config, saved_rig
 
 STATE = "adaptive.json"
 FORMAT = "gonio-adaptive/1"
@@ -36,7 +35,7 @@ def new_state(rig: RigConfig, model: str, settings: Any, metadata: dict[str, Any
     """The state of a sweep about to start: settings, model name, the rig as validated, no rounds."""
     return {
         "format": FORMAT, "state": "running", "model": model, "settings": dataclasses.asdict(settings),
-        "rig": rig.file.model_dump(mode="json", exclude_none=True), "rig_path": str(rig.path),
+        "rig": as_table(rig.file), "rig_path": str(rig.path),
         "geometry_calibration": rig.calibration.snapshot() if rig.calibration is not None else None,
         "metadata": metadata, "rounds": [],
     }  # fmt: skip
@@ -74,4 +73,4 @@ def rig_of(doc: dict[str, Any], where: Path) -> RigConfig:
     """The rig an adaptive sweep was started with, rebuilt from its state (as a run's manifest rebuilds it)."""
     snap = doc.get("geometry_calibration")
     cal = GeometryCalibration.from_snapshot(snap) if snap else None
-    return rig_config(parse(doc["rig"], RigFile, f"{where / STATE} rig"), doc["rig_path"], calibration=cal)
+    return rig_config(saved_rig(doc["rig"], f"{where / STATE} rig"), doc["rig_path"], calibration=cal)

@@ -36,7 +36,8 @@ from rig.instrument.calibration_file import (
 from rig.instrument.geometry import GeometryError, JointLimits, RigGeometry
 from rig.instrument.links.dynamixel_table import X_SERIES
 from rig.run import registry
-from rig.run.config_schema import RigFile, SweepFile
+from rig.run.config_schema import Camera as CameraTable
+from rig.run.config_schema import RigFile, SweepFile, camera_keys
 
 FloatArray = npt.NDArray[np.float64]
 M = TypeVar("M", bound=BaseModel)
@@ -154,6 +155,41 @@ def parse(data: Mapping[str, Any], model: type[M], path: str | Path = "<memory>"
         return model.model_validate(dict(data))
     except ValidationError as exc:
         raise ConfigError(_messages(Path(path), model, exc)) from None
+
+
+def as_table(cfg: RigFile | SweepFile) -> dict[str, Any]:
+    """A validated file as the JSON table it came from: the keys it gave, without the schema's defaults.
+
+    Which keys a file gives is part of what it says: a [camera] key of another backend is refused,
+    [camera.noise] beside a camera calibration is an error, a simulated GRBL axis without direction or
+    zero_offset_deg is homed to its limit. A manifest that dumped the defaults too (the simulated camera's
+    resolution into a folder camera's table, say) was refused by its own run on reading it back.
+    """
+    return cfg.model_dump(mode="json", exclude_unset=True)
+
+
+def saved_rig(data: Mapping[str, Any], where: str | Path) -> RigFile:
+    """A rig table saved by a run (manifest.json, adaptive.json) validated, ``where`` naming it in errors.
+
+    Runs written before ``as_table`` saved every default, so their [camera] table holds keys its backend
+    does not read (at their default values) and [camera.noise] beside a calibration; neither was given by
+    the rig file, and both are dropped so that those runs still analyse and resume.
+    """
+    table = dict(data)
+    cam = table.get("camera")
+    if isinstance(cam, dict):
+        cam = dict(cam)
+        schema = CameraTable.model_fields
+        defaults = CameraTable().model_dump(mode="json")
+        backend = cam.get("backend", schema["backend"].default)
+        read = camera_keys(backend) if isinstance(backend, str) else None
+        if read is not None:
+            for key in [k for k in cam if k in defaults and k not in read and cam[k] == defaults[k]]:
+                del cam[key]
+        if cam.get("calibration") is not None and cam.get("noise") == defaults["noise"]:
+            del cam["noise"]
+        table["camera"] = cam
+    return parse(table, RigFile, where)
 
 
 def default_axes(geometry: RigGeometry, first_id: int = 1) -> tuple[Axis, ...]:

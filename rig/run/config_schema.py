@@ -23,6 +23,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
+from acquisition.cameras import CameraError
 from acquisition.cameras import registry as cameras
 from acquisition.cameras.trigger import check_callable, check_command
 from rig.run import registry
@@ -245,11 +246,7 @@ class Camera(Strict):
     def _consistent(self) -> Camera:
         if self.min_exposure_s >= self.max_exposure_s:
             raise ValueError(f"min_exposure_s {self.min_exposure_s!r} must be below max_exposure_s")
-        keys: tuple[str, ...] = SIMULATED_CAMERA_KEYS
-        required: tuple[str, ...] = ()
-        if self.backend not in registry.provided_cameras():
-            found = cameras.camera_backend(self.backend)
-            keys, required = found.keys, found.required
+        keys, required = _backend_keys(self.backend)
         stray = sorted(set(self.model_fields_set) - set(COMMON_CAMERA_KEYS) - set(keys))
         if stray:
             whose = _owners(stray[0])
@@ -263,6 +260,22 @@ class Camera(Strict):
             hint = f": {_HINTS[missing[0]]}" if missing[0] in _HINTS else ""
             raise ValueError(f"the {self.backend} camera backend needs {', '.join(missing)}{hint}")
         return self
+
+
+def _backend_keys(backend: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The [camera] keys a registered backend reads beyond the common ones, and those it needs."""
+    if backend in registry.provided_cameras():
+        return SIMULATED_CAMERA_KEYS, ()
+    found = cameras.camera_backend(backend)
+    return found.keys, found.required
+
+
+def camera_keys(backend: str) -> tuple[str, ...] | None:
+    """Every [camera] key ``backend`` reads (the common ones included), None for a backend not registered."""
+    try:
+        return COMMON_CAMERA_KEYS + _backend_keys(backend)[0]
+    except CameraError:
+        return None
 
 
 _HINTS = {

@@ -20,8 +20,8 @@ from rig.instrument.axis import AxisLimitError
 from rig.instrument.calibration_file import GeometryCalibration
 from rig.instrument.kinematics import forward, inverse, require
 from rig.instrument.kinematics_types import UnreachableError
-from rig.run.config import ConfigError, RigConfig, SweepConfig, parse, rig_config, sweep_config
-from rig.run.config_schema import RigFile, SweepFile, run_metadata
+from rig.run.config import ConfigError, RigConfig, SweepConfig, as_table, parse, rig_config, saved_rig, sweep_config
+from rig.run.config_schema import SweepFile, run_metadata
 from rig.run.journal import check_records
 from rig.run.store import JOURNAL, RunStore, RunStoreError
 
@@ -125,8 +125,8 @@ def last_pose(store: RunStore) -> StartPose | None:
 def manifest(rig: RigConfig, sweep: SweepConfig, plan: Plan, run_options: RunOptions) -> dict[str, Any]:
     """The run's manifest: both files' validated tables (so a resume needs neither file), plan and options."""
     return {
-        "rig": rig.file.model_dump(mode="json", exclude_none=True), "rig_path": str(rig.path),
-        "sweep": sweep.file.model_dump(mode="json", exclude_none=True), "sweep_path": str(sweep.path),
+        "rig": as_table(rig.file), "rig_path": str(rig.path),
+        "sweep": as_table(sweep.file), "sweep_path": str(sweep.path),
         "points": len(plan.points), "unreachable": [
             {"index": s.index, "directions_deg": list(s.directions_deg), "reason": s.reason, "detail": s.detail}
             for s in plan.skipped
@@ -175,7 +175,7 @@ def configs_of(store: RunStore) -> tuple[RigConfig, SweepConfig]:
     m = store.manifest
     snap = m.get("geometry_calibration")
     cal = GeometryCalibration.from_snapshot(snap) if snap else None
-    rig = rig_config(parse(m["rig"], RigFile, f"{store.path}/manifest.json rig"), m["rig_path"], calibration=cal)
+    rig = rig_config(saved_rig(m["rig"], f"{store.path}/manifest.json rig"), m["rig_path"], calibration=cal)
     sweep = sweep_config(parse(m["sweep"], SweepFile, f"{store.path}/manifest.json sweep"), m["sweep_path"])
     return rig, sweep
 

@@ -14,9 +14,9 @@ import pytest
 from acquisition.board import ChArUcoBoard
 from rig.alignment.fit import CalibrationError, Capture, fit_geometry
 from rig.alignment.model import coat_peak, predict
-from rig.alignment.observe import FrameObservation, Highlight, find_highlight
-from rig.alignment.poses import PoseError, mirror_joints, plan_poses
-from rig.instrument.alignment import PARAMETERS, Alignment, alignment_of, parameters_of
+from rig.alignment.observe import FrameObservation, Highlight, find_highlight, observe
+from rig.alignment.poses import PoseError, mirror_joints, plan_poses, wrapped
+from rig.instrument.alignment import PARAMETERS, Alignment, aligned_forward, alignment_of, parameters_of
 from rig.instrument.camera_model import focal_length_px
 from rig.instrument.geometry import RigGeometry
 
@@ -147,6 +147,36 @@ def test_too_few_captures_are_refused() -> None:
         plan_poses(RigGeometry(), 5)
 
 
+@pytest.mark.parametrize("captures", [30, 40])
+@pytest.mark.parametrize("roll_zero_deg", [-15.0, 15.0])
+def test_mirror_rolls_past_a_half_turn_are_wrapped_into_the_rolls_limits(captures: int, roll_zero_deg: float) -> None:
+    # The mirror poses spread the roll to within 180 / n of +-180 deg: a stage whose roll zero is 15 deg off puts the
+    # first or last one past a half turn, which is the same pose a whole turn back (it was refused as beyond limits).
+    g = RigGeometry()
+    poses = plan_poses(g, captures)
+    estimate = Alignment(roll_zero_deg=roll_zero_deg, light_zero_deg=0.5, sample_tilt_deg=0.6)
+    joints = mirror_joints(g, poses, estimate)
+    rolls = np.array([j.roll for j in joints])
+    assert np.all((rolls >= -180.0) & (rolls <= 180.0)), rolls
+    # The wrapped roll is the solver's own (the drawn roll shifted by the zero) a whole turn away.
+    edge = 0 if roll_zero_deg < 0 else -1
+    drawn = -(180.0 - 360.0 * (0.5 if edge == 0 else len(rolls) - 0.5) / len(rolls))
+    assert abs(drawn + roll_zero_deg) > 180.0
+    assert rolls[edge] == pytest.approx(drawn + roll_zero_deg - math.copysign(360.0, roll_zero_deg), abs=0.5)
+    for j, wi, wo in zip(joints, poses.mirror_wi, poses.mirror_wo, strict=True):
+        d = aligned_forward(g, j, estimate)
+        assert np.allclose(d.wi, wi, atol=1e-8) and np.allclose(d.wo, wo, atol=1e-8)
+
+
+def test_a_joint_angle_is_wrapped_by_whole_turns_only_where_its_limits_allow() -> None:
+    assert wrapped(-307.0, -180.0, 180.0) == pytest.approx(53.0)
+    assert wrapped(187.74, -180.0, 180.0) == pytest.approx(-172.26)
+    assert wrapped(-300.0, -90.0, 90.0) == pytest.approx(60.0)
+    assert wrapped(200.0, -90.0, 90.0) == 200.0  # no whole turn brings it inside: left for the limit check to name
+    assert wrapped(370.0, -720.0, 720.0) == 370.0  # inside already: the nearest turn is none
+    assert wrapped(-170.0, -180.0, 180.0) == -170.0
+
+
 def test_the_highlight_peak_is_found_to_a_fraction_of_a_pixel() -> None:
     rng = np.random.default_rng(4)
     y, x = np.mgrid[0:60, 0:80] + 0.5
@@ -159,6 +189,34 @@ def test_the_highlight_peak_is_found_to_a_fraction_of_a_pixel() -> None:
     edge = 500.0 * np.exp(-((x - 1.0) ** 2 + (y - 27.8) ** 2) / (2 * 3.0**2)) + 5.0
     assert find_highlight(edge, edge)[1].startswith("the highlight touches the frame's edge")
     assert find_highlight(np.full((20, 20), 5.0), np.ones((20, 20)))[0] is None
+
+
+def _board_frame(stray: float, spot: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """A board pose's frame (counts/s) and variance: the print under a beam falling 5 % to its edge, set in
+    surroundings that only stray light reaches, and a lamp's highlight of ``spot`` times the white at (300, 290)."""
+    printed = BOARD.image(6.0).astype(np.float64) / 255.0
+    frame = np.full((600, 600), stray)
+    y, x = np.mgrid[0:600, 0:600] + 0.5
+    dome = 1.0 - 0.05 * ((x - 300.0) ** 2 + (y - 300.0) ** 2) / 300.0**2
+    n = printed.shape[0]
+    o = (600 - n) // 2
+    frame[o : o + n, o : o + n] += 1e5 * (0.04 + 0.86 * printed) * dome[o : o + n, o : o + n]
+    frame += spot * 1e5 * np.exp(-((x - 300.3) ** 2 + (y - 290.6) ** 2) / (2 * 4.0**2))
+    return frame, frame / 4.0 + 9.0
+
+
+@pytest.mark.parametrize("stray", [0.0, 20.0])
+def test_a_board_pose_without_the_lamps_highlight_keeps_its_corners(stray: float) -> None:
+    # Surroundings lit by stray light (examples/rig_misaligned.toml: 20 counts/s) made the whole frame's median
+    # thousands of times below the print: the white print's domed brightest pixel passed as a highlight, whose
+    # "glare" then took every corner (7 of 15 board captures found none).
+    frame, var = _board_frame(stray)
+    seen = observe(frame, var, BOARD)
+    assert seen.highlight is None and "below" in seen.note
+    assert len(seen.corner_ids) >= 20
+    lit, lit_var = _board_frame(stray, spot=100.0)
+    found = observe(lit, lit_var, BOARD, corners=False).highlight
+    assert found is not None and (found.x, found.y) == (pytest.approx(300.3, abs=0.05), pytest.approx(290.6, abs=0.05))
 
 
 def test_the_coats_peak_leans_off_the_mirror_point_by_a_fraction_of_a_pixel() -> None:
