@@ -7,6 +7,7 @@ module level), so the controller never depends on the stand-in hardware.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 from rig.instrument.clock import ScaledClock
@@ -40,6 +41,28 @@ def _speed(text: str) -> float:
         value = -1.0
     if not value > 0:
         raise argparse.ArgumentTypeError(f"speed {text!r}: expected a positive factor (1 = real time)")
+    return value
+
+
+def _grbl_axes(text: str) -> str:
+    """Parse --axes: a prefix of GRBL's axis letters XYZABC (the virtual controller has its axes in that order)."""
+    letters = "XYZABC"  # simulator.grbl.settings.AXIS_LETTERS, spelt out: the simulator loads only when a command runs
+    if not text or letters[: len(text)] != text:
+        raise argparse.ArgumentTypeError(
+            f"--axes {text!r}: expected the first 1 to {len(letters)} of GRBL's axis letters {letters} in that "
+            f"order, e.g. X, XY, XYZ or XYZA"
+        )
+    return text
+
+
+def capture_seconds(text: str) -> float:
+    """The exposure of a ``capture SECONDS`` line typed to ``gonio sim rig``; ValueError says what is expected."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"'capture {text}': expected 'capture SECONDS' with SECONDS a positive number")
     return value
 
 
@@ -108,7 +131,7 @@ def _rig(args: argparse.Namespace) -> int:
             words = line.split()
             if len(words) == 2 and words[0] == "capture":
                 try:
-                    raw.set_exposure(float(words[1]))
+                    raw.set_exposure(capture_seconds(words[1]))
                     raw.capture()
                 except ValueError as exc:
                     print(f"error: {exc}", flush=True)
@@ -170,7 +193,8 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     grbl = kinds.add_parser(
         "grbl", help="virtual GRBL 1.1 motion controller", epilog="Example: gonio sim grbl --axes XYZ"
     )
-    grbl.add_argument("--axes", default="XYZ", help="axis letters (default XYZ)")
+    grbl.add_argument("--axes", type=_grbl_axes, default="XYZ",
+                      help="axis letters, the first of XYZABC in order (default XYZ)")  # fmt: skip
     grbl.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
     grbl.set_defaults(func=_grbl)
     rig = kinds.add_parser(
