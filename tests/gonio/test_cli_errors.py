@@ -69,6 +69,18 @@ def test_an_operating_system_error_is_its_own_exit_code_with_the_path_and_reason
     assert f"operating-system error: {blocker / 'models'}: Not a directory [ENOTDIR]" in err
 
 
+@pytest.mark.parametrize("under", ["a-file", "a-file/deeper"])
+def test_a_run_directory_the_system_refuses_is_an_operating_system_error(tmp_path, capsys, under):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a directory")
+    out = tmp_path / under / "run"
+    assert cli.main(["run", str(EXAMPLES / "sweep_grid.toml"), "--out", str(out), "--quiet"]) == 74
+    err = capsys.readouterr().err
+    assert "operating-system error: " in err and "cannot create the run directory" in err
+    assert "Not a directory [ENOTDIR]" in err and str(out.parent) in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]
+
+
 def test_an_unexpected_exception_is_a_bug_not_bad_input(monkeypatch, capsys):
     def broken(*_args, **_kw):
         raise ValueError("an internal value went wrong")  # a ValueError that is nobody's input
