@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import datetime
 import difflib
+import inspect
 import re
 import tomllib
 import typing
@@ -349,6 +350,8 @@ def rig_config(
     if cfg.reference.kind not in ("manual", "none", *traits.references):
         raise ConfigError(f"{p}: reference.kind = {cfg.reference.kind!r}: only a rig whose backend provides it has "
                           f"a {cfg.reference.kind} reference")  # fmt: skip
+    if "material" in cfg.simulation.model_fields_set:
+        _material(cfg, p)  # here, not when the simulator opens: a bad parameter must stop a run before it starts
     if calibration is None and cfg.geometry.calibration is not None:
         named = Path(cfg.geometry.calibration)
         try:
@@ -407,15 +410,42 @@ def sweep_config(cfg: SweepFile, path: str | Path = "<sweep>") -> SweepConfig:
 
 def material_from(rig: RigConfig) -> Model:
     """The sample's model from ``[simulation.material]``: a model class of the model module and its parameters."""
-    table = rig.file.simulation.material
+    return _material(rig.file, rig.path)
+
+
+def _material(cfg: RigFile, path: Path) -> Model:
+    table = cfg.simulation.material
     cls = getattr(model, table.model, None)
     if not (isinstance(cls, type) and issubclass(cls, Model)) or cls is Model:
         names = sorted(n for n in dir(model) if isinstance(getattr(model, n), type)
                        and issubclass(getattr(model, n), Model) and getattr(model, n) is not Model)  # fmt: skip
         raise ConfigError(
-            f"{rig.path}: simulation.material.model = {table.model!r}: expected one of {', '.join(names)}"
+            f"{path}: simulation.material.model = {table.model!r}: expected one of {', '.join(names)}"
+            f"{_did_you_mean(table.model, names)}"
         )
+    given = table.parameters()
+    accepted = _parameters(cls)
+    where = f"{path}: simulation.material"
+    for key, value in given.items():
+        if key not in accepted:
+            raise ConfigError(
+                f"{where}.{key} = {_short(_plain(value))}: {cls.__name__} has no parameter {key!r}; its parameters "
+                f"are {', '.join(accepted) or 'none'}{_did_you_mean(key, list(accepted))}"
+            )
+    missing = [k for k, required in accepted.items() if required and k not in given]
+    if missing:
+        raise ConfigError(f"{where}: {cls.__name__} needs {', '.join(missing)}; its parameters are "
+                          f"{', '.join(accepted)}")  # fmt: skip
     try:
-        return cls(**table.parameters())
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{rig.path}: simulation.material: {exc}") from None
+        return cls(**given)
+    except (TypeError, ValueError, ArithmeticError) as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+
+
+def _parameters(cls: type[Model]) -> dict[str, bool]:
+    """A model class's keyword parameters, each with whether it is required (no default)."""
+    out: dict[str, bool] = {}
+    for name, p in inspect.signature(cls).parameters.items():
+        if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY):
+            out[name] = p.default is p.empty
+    return out

@@ -207,3 +207,34 @@ def test_metadata_tables_are_kept_merged_and_checked(tmp_path: Path) -> None:
         with pytest.raises(ConfigError) as err:
             load_sweep(bad)
         assert str(err.value).startswith(f"{tmp_path}/" + message), str(err.value)
+
+
+def _model_classes() -> list[type]:
+    import model
+    from model.base import Model
+
+    return [c for n in sorted(dir(model)) if isinstance(c := getattr(model, n), type) and issubclass(c, Model)
+            and c is not Model]  # fmt: skip
+
+
+@pytest.mark.parametrize("cls", _model_classes(), ids=lambda c: c.__name__)
+def test_a_misspelt_material_parameter_names_the_models_parameters_and_the_closest(tmp_path: Path, cls: type) -> None:
+    import inspect
+
+    names = list(inspect.signature(cls).parameters)
+    wanted = names[0]
+    typo = wanted + "x"  # rho_d -> rho_dx, alpha -> alphax
+    path = _write(tmp_path, f"[simulation.material]\nmodel = '{cls.__name__}'\n{typo} = 0.5\n")
+    with pytest.raises(ConfigError) as info:
+        load_rig(path)  # at load, before any run directory exists, not when the simulator builds the scene
+    text = str(info.value)
+    assert text.startswith(f"{path}: simulation.material.{typo} = 0.5: {cls.__name__} has no parameter {typo!r}")
+    assert f"its parameters are {', '.join(names)}" in text
+    assert f"did you mean {wanted!r}?" in text
+
+
+def test_lambert_with_rho_suggests_rho_d(tmp_path: Path) -> None:
+    path = _write(tmp_path, "[simulation.material]\nmodel = 'Lambert'\nrho = 0.5\n")
+    with pytest.raises(ConfigError, match=r"Lambert has no parameter 'rho'; its parameters are rho_d; did you mean "
+                       r"'rho_d'\?"):  # fmt: skip
+        load_rig(path)
