@@ -37,7 +37,7 @@ from rig.instrument.calibration_file import (
 from rig.instrument.geometry import GeometryError, JointLimits, RigGeometry
 from rig.instrument.links.dynamixel_table import X_SERIES
 from rig.run import registry
-from rig.run.config_schema import RigFile, SweepFile
+from rig.run.config_schema import AxisTable, RigFile, SweepFile
 
 FloatArray = npt.NDArray[np.float64]
 M = TypeVar("M", bound=BaseModel)
@@ -300,6 +300,8 @@ def _axes(path: Path, cfg: RigFile, geometry: RigGeometry) -> tuple[Axis, ...]:
                     f"{path}: axes.{name}.units_per_degree: missing; a GRBL axis needs its steps per degree"
                 )
             upd = X_SERIES.ticks_per_degree
+        if not letters and abs(upd - X_SERIES.ticks_per_degree) <= 1e-9 * X_SERIES.ticks_per_degree:
+            _check_servo_profile(path, name, table)
         try:
             out.append(Axis(
                 name=name, address=table.id if table.id is not None else str(table.letter), units_per_degree=upd,
@@ -315,6 +317,28 @@ def _axes(path: Path, cfg: RigFile, geometry: RigGeometry) -> tuple[Axis, ...]:
         dup = next(i for i in ids if ids.count(i) > 1)
         raise ConfigError(f"{path}: axes: address {dup!r} is used by two joints; expected one servo per joint")
     return tuple(out)
+
+
+def _check_servo_profile(path: Path, name: str, table: AxisTable) -> None:
+    """Refuse a speed or acceleration the XM430-W350 cannot take (the servo answers a Data Limit Error mid-run).
+
+    The servo is profiled in motor terms: the joint's value times ``gear_ratio``, as the link writes it.
+    """
+    g = table.gear_ratio
+    geared = f" (x gear_ratio {g:g} = {{motor:g}} at the servo)" if g != 1 else ""
+    checks = (
+        ("max_speed_deg_s", table.max_speed_deg_s, X_SERIES.velocity_units, X_SERIES.velocity_limit_units,
+         X_SERIES.max_speed_deg_s, "deg/s", "its Velocity Limit, 200 x 0.229 rev/min"),
+        ("max_accel_deg_s2", table.max_accel_deg_s2, X_SERIES.accel_units, X_SERIES.accel_limit_units,
+         X_SERIES.max_accel_deg_s2, "deg/s^2", "its Profile Acceleration register's largest value, 32767 x 214.577 "
+         "rev/min^2"),
+    )  # fmt: skip
+    for key, value, units, limit_units, limit, unit, why in checks:
+        if limit_units is not None and units(value * g) > limit_units:
+            raise ConfigError(
+                f"{path}: axes.{name}.{key} = {value:g}{geared.format(motor=value * g)}: an XM430-W350 takes at "
+                f"most {limit:g} {unit} ({why}); expected at most {limit / g:g} {unit} for this joint"
+            )
 
 
 def load_rig(path: str | Path) -> RigConfig:

@@ -238,3 +238,66 @@ def test_lambert_with_rho_suggests_rho_d(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"Lambert has no parameter 'rho'; its parameters are rho_d; did you mean "
                        r"'rho_d'\?"):  # fmt: skip
         load_rig(path)
+
+
+DYNAMIXEL_RIG = """[link]
+kind = "dynamixel"
+port = "/dev/ttyUSB0"
+[axes.light]
+id = 1
+{light}
+[axes.camera]
+id = 2
+[axes.tilt]
+id = 3
+gear_ratio = 3.0
+{tilt}
+[axes.roll]
+id = 4
+[reference]
+kind = "manual"
+"""
+
+
+@pytest.mark.parametrize(
+    ("light", "tilt", "message"),
+    [
+        ("max_speed_deg_s = 720.0", "", r"axes\.light\.max_speed_deg_s = 720: an XM430-W350 takes at most 274\.8 "
+         r"deg/s \(its Velocity Limit, 200 x 0\.229 rev/min\); expected at most 274\.8 deg/s for this joint"),
+        ("", "max_speed_deg_s = 100.0", r"axes\.tilt\.max_speed_deg_s = 100 \(x gear_ratio 3 = 300 at the servo\): "
+         r"an XM430-W350 takes at most 274\.8 deg/s .*; expected at most 91\.6 deg/s for this joint"),
+        ("max_accel_deg_s2 = 1e6", "", r"axes\.light\.max_accel_deg_s2 = 1e\+06: an XM430-W350 takes at most 703104 "
+         r"deg/s\^2 .*32767"),
+    ],
+)  # fmt: skip
+def test_a_dynamixel_axis_faster_than_the_servo_is_refused_naming_key_value_and_limit(
+    tmp_path: Path, light: str, tilt: str, message: str
+) -> None:
+    path = _write(tmp_path, DYNAMIXEL_RIG.format(light=light, tilt=tilt))
+    with pytest.raises(ConfigError, match=message):
+        load_rig(path)
+
+
+def test_the_servo_limits_the_rig_file_allows_are_the_virtual_xm430s() -> None:
+    """At the limit the (virtual) servo takes the profile; just beyond it answers Data Limit Error."""
+    import dataclasses
+
+    from rig.instrument.clock import ManualClock
+    from rig.instrument.links.base import LinkError
+    from rig.instrument.links.dynamixel import DynamixelLink
+    from rig.instrument.links.dynamixel_table import X_SERIES
+    from simulator.dynamixel import open_virtual_bus
+
+    fastest = X_SERIES.max_speed_deg_s / 3.0
+    at_limit = DYNAMIXEL_RIG.format(light="", tilt=f"max_speed_deg_s = {fastest!r}")
+    rig = rig_config(parse(tomllib.loads(at_limit), RigFile, "rig.toml"), "rig.toml")
+    beyond = tuple(dataclasses.replace(a, max_speed_deg_s=fastest * 1.01) if a.name == "tilt" else a
+                   for a in rig.axes)  # fmt: skip
+    with pytest.raises(ConfigError, match="max_speed_deg_s"):
+        rig_config(parse(tomllib.loads(DYNAMIXEL_RIG.format(light="", tilt=f"max_speed_deg_s = {fastest * 1.01!r}")),
+                         RigFile, "rig.toml"), "rig.toml")  # fmt: skip
+    clock = ManualClock()
+    with open_virtual_bus(ids=(1, 2, 3, 4), baudrate=1_000_000, clock=clock) as bus:
+        DynamixelLink.open(bus.port, rig.axes, clock=clock, latency_timer_ms=60.0).shutdown()
+        with pytest.raises(LinkError, match="Data Limit"):
+            DynamixelLink.open(bus.port, beyond, clock=clock, latency_timer_ms=60.0).shutdown()
