@@ -76,7 +76,8 @@ def geometry_options(args: argparse.Namespace) -> None:
     from rig.alignment.poses import MIN_CAPTURES
 
     def bad(option: str, value: object, expected: str) -> CliError:
-        return CliError(f"{option} {value!r}: expected {expected}")
+        shown = f"{value:g}" if isinstance(value, float) else repr(value)  # as typed: 120, not 120.0
+        return CliError(f"{option} {shown}: expected {expected}")
 
     if not 3 <= args.squares <= 20:
         raise bad("--squares", args.squares, "3 to 20 squares per side of the board")

@@ -12,11 +12,11 @@ from gonio.cli import main
 @pytest.mark.parametrize(
     ("option", "value", "expected"),
     [
-        ("--square-mm", "0", "--square-mm 0.0: expected the board's square size in mm, a number > 0"),
+        ("--square-mm", "0", "--square-mm 0: expected the board's square size in mm, a number > 0"),
         ("--square-mm", "nan", "--square-mm nan: expected the board's square size in mm"),
-        ("--square-mm", "-6", "--square-mm -6.0: expected the board's square size in mm"),
-        ("--marker-mm", "7", "--marker-mm 7.0: expected the ArUco marker's size in mm, > 0 and below --square-mm (6)"),
-        ("--marker-mm", "0", "--marker-mm 0.0: expected the ArUco marker's size in mm"),
+        ("--square-mm", "-6", "--square-mm -6: expected the board's square size in mm"),
+        ("--marker-mm", "7", "--marker-mm 7: expected the ArUco marker's size in mm, > 0 and below --square-mm (6)"),
+        ("--marker-mm", "0", "--marker-mm 0: expected the ArUco marker's size in mm"),
         ("--squares", "2", "--squares 2: expected 3 to 20 squares per side of the board"),
         ("--captures", "3", "--captures 3: expected 8 to 1000 captures"),
         ("--alpha", "inf", "--alpha inf: expected the coat's GGX roughness in [1e-4, 0.3]"),
