@@ -326,7 +326,9 @@ class RunStore:
                 os.fsync(fd)
             finally:
                 os.close(fd)
-            msg = f"{where}: dropped a torn last line ({torn} bytes) left by an interrupted write"
+            line = len(records) + 1  # every line before the torn one holds one record
+            msg = (f"{where}: line {line} was half-written ({torn} bytes, not a whole record) and was dropped: the "
+                   "process before died in the middle of writing it; that point is measured again")  # fmt: skip
             warnings.warn(msg, RunStoreWarning, stacklevel=3)
         self._records, self._journal_size = records, good
 
