@@ -249,7 +249,8 @@ def round_rig(rig: RigConfig, index: int) -> RigConfig:
     """
     if index == 0:
         return rig
-    return replace_table(rig, "simulation", seed=(rig.file.simulation.seed * 1_000_003 + index) % 2**63)
+    # Modulo 2**32: a rig file's seed range (Mitsuba's sampler takes a uint32).
+    return replace_table(rig, "simulation", seed=(rig.file.simulation.seed * 1_000_003 + index) % 2**32)
 
 
 def with_reference_snr(rig: RigConfig, snr: float | None) -> RigConfig:

@@ -82,6 +82,39 @@ def _allowed_keys(model: type[BaseModel], loc: tuple[int | str, ...]) -> list[st
     return sorted(current.model_fields) if current is not None else []
 
 
+#: pydantic's error types that say only what type was wanted; the key's bounds are added to them.
+_TYPE_ERRORS = ("int_type", "int_from_float", "int_parsing", "float_type", "finite_number", "float_parsing")
+
+
+def _range(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:
+    """`` from 1 to 20000000`` (or ``>= 0`` ...) for the key at ``loc`` if its schema bounds it, else ``""``."""
+    if not loc or not isinstance(loc[-1], str):
+        return ""
+    current: Any = model
+    parts = list(loc[:-1])
+    while parts and current is not None:
+        part = parts.pop(0)
+        info = current.model_fields.get(part) if isinstance(part, str) else None
+        ann = info.annotation if info is not None else None
+        if typing.get_origin(ann) is dict:
+            ann, parts = typing.get_args(ann)[1], parts[1:]
+        current = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
+    info = current.model_fields.get(loc[-1]) if current is not None else None
+    if info is None:
+        return ""
+    metadata = list(info.metadata)
+    for arg in typing.get_args(info.annotation):  # an optional key: Annotated[float, Field(...)] | None
+        metadata += list(getattr(arg, "__metadata__", ()))
+        for inner in getattr(arg, "__metadata__", ()):
+            metadata += list(getattr(inner, "metadata", ()))
+    bounds = {type(m).__name__: getattr(m, type(m).__name__.lower()) for m in metadata
+              if type(m).__name__ in ("Gt", "Ge", "Lt", "Le")}  # fmt: skip
+    shown = {k: str(v) if isinstance(v, int) else f"{v:g}" for k, v in bounds.items()}
+    lo = f">= {shown['Ge']}" if "Ge" in shown else f"> {shown['Gt']}" if "Gt" in shown else ""
+    hi = f"<= {shown['Le']}" if "Le" in shown else f"< {shown['Lt']}" if "Lt" in shown else ""
+    return f" ({' and '.join(x for x in (lo, hi) if x)})" if lo or hi else ""
+
+
 def _did_you_mean(word: Any, known: list[str]) -> str:
     """``"; did you mean 'x'?"`` for the closest known name to a misspelt key or value, else ``""``."""
     if not isinstance(word, str):
@@ -122,6 +155,8 @@ def _messages(path: Path, model: type[BaseModel], err: ValidationError) -> str:
             shown = _short(_plain(e["input"])) if not isinstance(e["input"], dict) else "(table)"
             head = f"{path}: {key} = {shown}: expected "
             text = msg[0].lower() + msg[1:] if msg else "a valid value"
+            if e["type"] in _TYPE_ERRORS:
+                text += _range(model, loc)
             if e["type"] == "literal_error":
                 text += _did_you_mean(e["input"], re.findall(r"'([^']*)'", str(e.get("ctx", {}).get("expected", ""))))
             same = [i for i, line in enumerate(lines) if line.startswith(head)]

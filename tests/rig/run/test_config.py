@@ -301,3 +301,28 @@ def test_the_servo_limits_the_rig_file_allows_are_the_virtual_xm430s() -> None:
         DynamixelLink.open(bus.port, rig.axes, clock=clock, latency_timer_ms=60.0).shutdown()
         with pytest.raises(LinkError, match="Data Limit"):
             DynamixelLink.open(bus.port, beyond, clock=clock, latency_timer_ms=60.0).shutdown()
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("[link]\nbaudrate = 1e30\n", r"link\.baudrate = 1e\+30: expected a valid integer \(> 0 and <= 20000000\)"),
+        ("[link]\nbaudrate = 100000000\n", r"link\.baudrate = 100000000: expected a value less than or equal to 2"),
+        ("[simulation]\nseed = 18446744073709551617\n",
+         r"simulation\.seed = 18446744073709551617: expected a value less than or equal to 4294967295"),
+        ("[simulation]\nseed = 1.5\n", r"simulation\.seed = 1\.5: expected a valid integer \(>= 0 and <= 4294967295\)"),
+        ("[camera.noise]\ne_per_dn = 1e-300\n",
+         r"camera\.noise\.e_per_dn = 1e-300: expected a value greater than or equal to 0\.001"),
+        ("[camera.noise]\nfull_well_e = 1e300\n", r"camera\.noise\.full_well_e = 1e\+300: expected a value less than"),
+        ("[geometry]\nlight_radius_m = 1e300\n", r"geometry\.light_radius_m = 1e\+300: expected a value less than"),
+        ("[camera]\nmax_exposure_s = 1e300\n", r"camera\.max_exposure_s = 1e\+300: expected a value less than"),
+        ("[reference]\nevery = 10000000000\n", r"reference\.every = 10000000000: expected a value less than"),
+        ("[simulation]\nlight_intensity_w_sr = 1e300\n", r"simulation\.light_intensity_w_sr = 1e\+300: expected"),
+        ("[simulation]\ntime_scale = 1e300\n", r"simulation\.time_scale = 1e\+300: expected a value less than"),
+    ],
+)  # fmt: skip
+def test_extreme_numbers_are_refused_naming_key_value_and_range(tmp_path: Path, text: str, message: str) -> None:
+    path = _write(tmp_path, text)
+    with pytest.raises(ConfigError, match=message) as info:
+        load_rig(path)
+    assert str(info.value).startswith(str(path))
