@@ -459,8 +459,13 @@ class RigFile(Strict):
     simulation: Simulation = Simulation()
 
 
+#: The most points a sweep may expand to: far beyond any real sweep (a dense grid of 10^4 points runs for days),
+#: short of what would exhaust memory generating and planning it.
+MAX_SWEEP_POINTS = 1_000_000
+
+
 class Sweep(Strict):
-    """``[sweep]``: which BRDF directions to measure, in degrees."""
+    """``[sweep]``: which BRDF directions to measure, in degrees (at most MAX_SWEEP_POINTS combinations)."""
 
     kind: Literal["grid", "in_plane", "rusinkiewicz", "list"]
     theta_i_deg: tuple[Finite, ...] | None = None
@@ -494,6 +499,14 @@ class Sweep(Strict):
         stray = [k for k in optional - allowed if getattr(self, k) is not None]
         if stray:
             raise ValueError(f"{', '.join(sorted(stray))} has no meaning in a {self.kind!r} sweep")
+        # Counted from the lists' lengths, before a point is generated: a product of long lists would need
+        # gigabytes just to hold the combinations.
+        keys = [k for k in (*needed, *sorted(allowed - set(needed))) if getattr(self, k) is not None]
+        count = math.prod(len(getattr(self, k)) for k in keys)
+        if count > MAX_SWEEP_POINTS:
+            lengths = " x ".join(f"{k} ({len(getattr(self, k))})" for k in keys)
+            raise ValueError(f"{lengths} = {count} points: expected at most {MAX_SWEEP_POINTS} points in a sweep "
+                             "(shorten the lists, or split the sweep into several runs)")  # fmt: skip
         return self
 
 
