@@ -148,7 +148,7 @@ class AxisTable(Strict):
     max_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] | None = None
     max_speed_deg_s: Annotated[float, Field(gt=0, le=1e5, allow_inf_nan=False)] = 60.0
     max_accel_deg_s2: Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)] = 120.0
-    tolerance_deg: Pos = 0.2
+    tolerance_deg: Annotated[float, Field(gt=0, le=90, allow_inf_nan=False)] = 0.2
 
     @model_validator(mode="after")
     def _one_address(self) -> AxisTable:
@@ -215,7 +215,7 @@ class Camera(Strict):
     settle_s: Annotated[float, Field(ge=0, le=3600, allow_inf_nan=False)] | None = None
     accept_unconfirmed_exposure: bool | None = None
     # opencv
-    device: Annotated[int, Field(ge=0)] | str | None = None
+    device: Annotated[int, Field(ge=0, le=65535)] | str | None = None
     api: Literal["any", "v4l2", "images", "ffmpeg", "gstreamer"] | None = None
     strict: bool | None = None
     # gphoto2
@@ -226,7 +226,7 @@ class Camera(Strict):
     # genicam
     cti_file: str | None = None
     serial_number: str | None = None
-    index: Annotated[int, Field(ge=0)] | None = None
+    index: Annotated[int, Field(ge=0, le=65535)] | None = None
     pixel_format: str | None = None
     # more than one backend
     timeout_s: Annotated[float, Field(gt=0, le=3600)] | None = None

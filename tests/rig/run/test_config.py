@@ -319,6 +319,7 @@ def test_the_servo_limits_the_rig_file_allows_are_the_virtual_xm430s() -> None:
         ("[reference]\nevery = 10000000000\n", r"reference\.every = 10000000000: expected a value less than"),
         ("[simulation]\nlight_intensity_w_sr = 1e300\n", r"simulation\.light_intensity_w_sr = 1e\+300: expected"),
         ("[simulation]\ntime_scale = 1e300\n", r"simulation\.time_scale = 1e\+300: expected a value less than"),
+        ("[axes.light]\nid = 1\ntolerance_deg = 1e300\n", r"axes\.light\.tolerance_deg = 1e\+300: expected a"),
     ],
 )  # fmt: skip
 def test_extreme_numbers_are_refused_naming_key_value_and_range(tmp_path: Path, text: str, message: str) -> None:
