@@ -233,7 +233,9 @@ def unknown_file(path: Path) -> str:
     if path.suffix == ".toml" or head.lstrip().startswith((b"[", b"#", b"name")):
         looks = " (it looks like a TOML rig or sweep file: analyse the run directory gonio run made with it)"
     elif path.suffix == ".binary":
-        looks = " (named .binary, but it does not start with a MERL header)"
+        dims = struct.unpack("<3i", head[:12]) if len(head) >= 12 else None
+        found = f"its header is {dims}" if dims else f"it has {len(head)} bytes, too few for a header"
+        looks = f" (named .binary, but not a MERL table: {found}, a MERL table's is {SHAPE})"
     return f"{path}: not something gonio analyze reads{looks}; SOURCE: expected {ACCEPTED}"
 
 

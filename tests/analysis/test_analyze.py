@@ -321,15 +321,21 @@ def short_file(d: Path) -> Path:
     return d / "short.binary"
 
 
+def merl_header(d: Path) -> Path:
+    (d / "short.binary").write_bytes(np.array([90, 90, 180], dtype="<i4").tobytes() + b"\0" * 100)
+    return d / "short.binary"
+
+
 @pytest.mark.parametrize(
     ("make", "extra", "expected", "names_source"),
     [
         (lambda d: d / "missing", [], "no such file or directory", True),
         (lambda d: d, [], "not a run directory", True),
-        (short_file, [], "header dimensions (0, 0, 0), expected (90, 90, 180) (SOURCE: expected a MERL", True),
+        (short_file, [], "named .binary, but not a MERL table: its header is (0, 0, 0), a MERL table's is (90, 90, "
+         "180)); SOURCE: expected a run directory", True),
         (short_file, ["--models", "lambert,phong"], "unknown model 'phong'", False),
         (short_file, ["--loss", "l3"], "--loss 'l3': expected one of l2, cosine_l2, log, cbrt", False),
-        (short_file, ["--errors", "point"], "is a MERL file, which has no readings", True),
+        (merl_header, ["--errors", "point"], "is a MERL file, which has no readings", True),
     ],
     ids=["missing", "not-a-run", "bad-merl", "unknown-model", "bad-loss", "point-errors-of-merl"],
 )
@@ -451,7 +457,7 @@ def test_an_empty_samples_table_beside_a_full_journal_is_blamed_not_the_journal(
 @pytest.mark.parametrize(
     ("name", "content", "looks"),
     [("rig.toml", (ROOT / "examples" / "rig_simulated.toml").read_bytes(), "it looks like a TOML rig or sweep file"),
-     ("paint.binary", b"\x00" * 64, "named .binary, but it does not start with a MERL header"),
+     ("paint.binary", b"\x00" * 64, "named .binary, but not a MERL table: its header is (0, 0, 0)"),
      ("notes.txt", b"hello", "")],
 )  # fmt: skip
 def test_a_source_that_is_no_run_table_or_merl_file_is_named_with_what_is_accepted(
