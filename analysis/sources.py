@@ -140,6 +140,9 @@ def load_adaptive(path: Path, log: Log, errors: str = "total") -> tuple[SourceSu
     finished = state["state"] == "finished" and table.is_file()
     if finished:
         rows = _csv_rows(table)
+        if not rows:  # its rounds' runs still hold the points
+            raise AnalysisError(f"{_empty_table(table, in_run=False)}; the rounds' runs {path}/round-* still hold "
+                                "every point: remove it and analyse the sweep's directory to read them")  # fmt: skip
     else:  # every round's run, the last one as far as its journal goes
         rows = []
         for number, directory in enumerate(sorted(p for p in path.glob("round-*") if (p / MANIFEST).is_file())):
