@@ -33,6 +33,7 @@ from analysis.sources import (
     load_table,
     read_merl_source,
     source_kind,
+    unknown_file,
 )
 from analysis.uncertainty import uncertainty_json
 from model.base import Model
@@ -83,6 +84,8 @@ def load_and_fit(
     n = DEFAULT_MERL_SAMPLES if samples is None else samples
     if n < 1:
         raise AnalysisError(f"--samples {n}: expected a positive number of MERL bins")
+    if kind == "unknown file":
+        raise AnalysisError(unknown_file(path))
     if kind == "unknown":
         raise AnalysisError(f"{path}: not a run directory (no {MANIFEST}; expected a directory written by gonio run) "
                             "nor an adaptive sweep's (no adaptive.json, written by gonio adaptive)")  # fmt: skip

@@ -12,13 +12,14 @@ assumed), which is how MERL materials are imported for fitting and comparison.
 from __future__ import annotations
 
 import csv
+import struct
 import warnings
 from pathlib import Path
 from typing import Any
 
 from analysis.result import AnalysisError, Log, Reference, SourceSummary
 from model.fit.samples import FitError, Samples
-from model.merl import MerlFormatError, MerlTable, read_merl
+from model.merl import SHAPE, MerlFormatError, MerlTable, read_merl
 from rig.run.adaptive_state import AdaptiveStateError, is_adaptive, read_state, rig_of
 from rig.run.config import material_from
 from rig.run.config_schema import run_metadata
@@ -45,6 +46,23 @@ def _check_complete(rows: list[dict[str, Any]], table: Path) -> None:
                                 f"journal {table.parent / JOURNAL} still holds every point)")  # fmt: skip
 
 
+def _empty_table(table: Path, in_run: bool = True) -> str:
+    """Why ``table`` has no rows (no header, or a header alone), and for a run's table how to recover them."""
+    try:
+        text = table.read_text(encoding="utf-8", errors="replace")
+    except OSError as exc:
+        return f"{table}: cannot read the samples table: {exc}"
+    if not text.strip():
+        what = "is empty (no header, no rows)"
+    else:
+        what = "has a header but no rows"
+    if not in_run:
+        return f"{table}: {what}; expected a samples table with a header line and one row per sample"
+    return (f"{table}: {what}: the table was cut short or overwritten; its run's journal "
+            f"{table.parent / JOURNAL} still holds the points: remove {table.name} and analyse the run directory "
+            f"{table.parent} to rebuild the rows from the journal")  # fmt: skip
+
+
 def _run_rows(path: Path) -> tuple[RunStore, Any, Any, dict[str, Any], list[dict[str, Any]]]:
     """(store, rig, sweep, status, rows) of a run directory: its table, or its journal if unfinished."""
     try:
@@ -58,6 +76,8 @@ def _run_rows(path: Path) -> tuple[RunStore, Any, Any, dict[str, Any], list[dict
     table = path / "samples.csv"
     if table.is_file():
         rows: list[dict[str, Any]] = list(store.read_table())
+        if not rows:  # the journal may be full: the table, not the run, is what is empty
+            raise AnalysisError(_empty_table(table))
         _check_complete(rows, table)
     elif status["state"] == "finished":
         raise AnalysisError(f"{path}: the run is marked finished but has no samples.csv ({table})")
@@ -120,6 +140,9 @@ def load_adaptive(path: Path, log: Log, errors: str = "total") -> tuple[SourceSu
     finished = state["state"] == "finished" and table.is_file()
     if finished:
         rows = _csv_rows(table)
+        if not rows:  # its rounds' runs still hold the points
+            raise AnalysisError(f"{_empty_table(table, in_run=False)}; the rounds' runs {path}/round-* still hold "
+                                "every point: remove it and analyse the sweep's directory to read them")  # fmt: skip
     else:  # every round's run, the last one as far as its journal goes
         rows = []
         for number, directory in enumerate(sorted(p for p in path.glob("round-*") if (p / MANIFEST).is_file())):
@@ -164,6 +187,8 @@ def load_table(path: Path, log: Log, errors: str = "total") -> tuple[SourceSumma
             raise AnalysisError(f"{path}: cannot read the Parquet samples table: {exc}") from exc
     else:
         rows = _csv_rows(path)
+        if not rows:
+            raise AnalysisError(_empty_table(path, in_run=False))
     samples = _samples(rows, path, errors)
     summary = SourceSummary("table", path, "file", measured=len(rows), lower_bound=int(samples.lower_bound.sum()),
                             notes=samples.notes)  # fmt: skip
@@ -181,7 +206,40 @@ def source_kind(path: Path) -> str:
         return "unknown"
     if not path.exists():
         return "missing"
-    return "table" if path.suffix in (".csv", ".parquet") else "merl"
+    if _merl_header(path):  # by content: a MERL file is one whatever its name
+        return "merl"
+    return "table" if path.suffix in (".csv", ".parquet") else "unknown file"
+
+
+#: What gonio analyze reads, for the message about a file it cannot.
+ACCEPTED = ("a run directory (written by gonio run), an adaptive sweep's directory (gonio adaptive), a samples "
+            "table (.csv or .parquet) or a MERL .binary file (a 12-byte header 90 90 180, then 3 x 1,458,000 doubles)")
+
+
+def _merl_header(path: Path) -> bool:
+    """Whether ``path`` starts with a MERL table's header: its dimensions 90, 90, 180 as little-endian int32."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(12)
+    except OSError:
+        return False
+    return len(head) == 12 and struct.unpack("<3i", head) == SHAPE
+
+
+def unknown_file(path: Path) -> str:
+    """Why ``path`` is no analysis source: what it looks like, and what gonio analyze reads."""
+    try:
+        head = path.read_bytes()[:64] if path.is_file() else b""
+    except OSError:
+        head = b""
+    looks = ""
+    if path.suffix == ".toml" or head.lstrip().startswith((b"[", b"#", b"name")):
+        looks = " (it looks like a TOML rig or sweep file: analyse the run directory gonio run made with it)"
+    elif path.suffix == ".binary":
+        dims = struct.unpack("<3i", head[:12]) if len(head) >= 12 else None
+        found = f"its header is {dims}" if dims else f"it has {len(head)} bytes, too few for a header"
+        looks = f" (named .binary, but not a MERL table: {found}, a MERL table's is {SHAPE})"
+    return f"{path}: not something gonio analyze reads{looks}; SOURCE: expected {ACCEPTED}"
 
 
 def read_merl_source(path: Path, what: str) -> MerlTable:

@@ -11,7 +11,7 @@ from gonio.cli_adaptive import add_adaptive_parser
 from gonio.cli_analyze import add_analyze_parser
 from gonio.cli_batch import add_batch_parser
 from gonio.cli_calibrate import add_calibrate_parser
-from gonio.cli_errors import EXIT_CODES_HELP, GonioParser, quiet_broken_pipe, report, stdout_closed
+from gonio.cli_errors import EXIT_CODES_HELP, GonioParser, plain_warnings, quiet_broken_pipe, report, stdout_closed
 from gonio.cli_run import EXIT_OK, add_run_parsers
 from gonio.cli_servo import add_servo_parser
 from gonio.cli_sim import add_sim_parser
@@ -72,6 +72,11 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the gonio console script; returns the process exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    with plain_warnings():
+        return _call(args)
+
+
+def _call(args: argparse.Namespace) -> int:
     try:
         code = int(args.func(args))
         sys.stdout.flush()  # here, not at exit, so that a closed pipe is met where it can be handled

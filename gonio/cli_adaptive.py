@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -21,6 +22,29 @@ def _metadata(pairs: list[str] | None) -> dict[str, str]:
     return out
 
 
+def _check_options(args: argparse.Namespace) -> None:
+    """The sweep's options, each blamed by its own name (AdaptiveSettings' words are the Python API's)."""
+
+    def bad(option: str, value: object, expected: str) -> CliError:
+        shown = f"{value:g}" if isinstance(value, float) else repr(value)  # as typed: 120, not 120.0
+        return CliError(f"{option} {shown}: expected {expected}")
+
+    if args.budget < 1:
+        raise bad("--budget", args.budget, "a positive number of captures")
+    if not 1 <= args.initial <= args.budget:
+        raise bad("--initial", args.initial, f"1 to --budget ({args.budget}) captures in the first round")
+    if args.batch < 1:
+        raise bad("--batch", args.batch, "a positive number of captures per round")
+    if not (math.isfinite(args.max_theta) and 0 < args.max_theta <= 90):
+        raise bad("--max-theta", args.max_theta, "a zenith in degrees, > 0 and at most 90")
+    if not (math.isfinite(args.snr) and args.snr > 0):
+        raise bad("--snr", args.snr, "a positive signal-to-noise ratio")
+    if args.reference_snr is not None and not (math.isfinite(args.reference_snr) and args.reference_snr > 0):
+        raise bad("--reference-snr", args.reference_snr, "a positive signal-to-noise ratio")
+    if not 0 <= args.seed < 2**32:
+        raise bad("--seed", args.seed, "a whole number from 0 to 4294967295")
+
+
 def _adaptive(args: argparse.Namespace) -> int:
     from tqdm.auto import tqdm
 
@@ -35,6 +59,7 @@ def _adaptive(args: argparse.Namespace) -> int:
         return resume_adaptive_dir(args.resume)
     if not args.out:
         raise CliError("gonio adaptive: --out DIR is required (or --resume DIR to continue a sweep)")
+    _check_options(args)
     spec = None if args.model == "auto" else parse_models(args.model)[0]
     try:
         settings = AdaptiveSettings(budget=args.budget, initial=args.initial, batch=args.batch,

@@ -15,6 +15,7 @@ transfer curve ``photon_transfer.png`` into ``--out``. A rig file uses them with
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -30,6 +31,10 @@ def _camera(args: argparse.Namespace) -> int:
     from rig.run.calibrate import CalibrationSettings, calibrate_camera, write_calibration
     from rig.run.session import instruments
 
+    if args.steps < 6:
+        raise CliError(f"--steps {args.steps}: expected at least 6 exposures (photon transfer needs them)")
+    if args.flat_frames < 0 or args.flat_frames == 1:
+        raise CliError(f"--flat-frames {args.flat_frames}: expected 0 (no flat field) or at least 2")
     rig = _rig(args.rig)
     try:
         settings = CalibrationSettings(steps=args.steps, flat_frames=args.flat_frames)
@@ -66,6 +71,27 @@ def _camera(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def geometry_options(args: argparse.Namespace) -> None:
+    """Check --squares, --square-mm, --marker-mm, --captures and --alpha up front; CliError names the option."""
+    from rig.alignment.poses import MIN_CAPTURES
+
+    def bad(option: str, value: object, expected: str) -> CliError:
+        shown = f"{value:g}" if isinstance(value, float) else repr(value)  # as typed: 120, not 120.0
+        return CliError(f"{option} {shown}: expected {expected}")
+
+    if not 3 <= args.squares <= 20:
+        raise bad("--squares", args.squares, "3 to 20 squares per side of the board")
+    if not (math.isfinite(args.square_mm) and 0 < args.square_mm <= 1000):
+        raise bad("--square-mm", args.square_mm, "the board's square size in mm, a number > 0 (at most 1000)")
+    if not (math.isfinite(args.marker_mm) and 0 < args.marker_mm < args.square_mm):
+        raise bad("--marker-mm", args.marker_mm, f"the ArUco marker's size in mm, > 0 and below --square-mm "
+                  f"({args.square_mm:g})")  # fmt: skip
+    if not MIN_CAPTURES <= args.captures <= 1000:
+        raise bad("--captures", args.captures, f"{MIN_CAPTURES} to 1000 captures")
+    if not (math.isfinite(args.alpha) and 1e-4 <= args.alpha <= 0.3):
+        raise bad("--alpha", args.alpha, "the coat's GGX roughness in [1e-4, 0.3]")
+
+
 def _geometry(args: argparse.Namespace) -> int:
     from acquisition.board import BoardError, ChArUcoBoard
     from rig.alignment.fit import CalibrationError
@@ -73,6 +99,7 @@ def _geometry(args: argparse.Namespace) -> int:
     from rig.alignment.procedure import calibrate_geometry
     from rig.instrument.links.base import LinkError
 
+    geometry_options(args)  # before the rig file: a mistyped option should not wait for a rig to load
     rig = _rig(args.rig)
     say = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     try:

@@ -10,6 +10,7 @@ plan ... | head``) ends quietly with 141, as a program killed by SIGPIPE does.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import difflib
 import errno
 import os
@@ -17,7 +18,10 @@ import re
 import select
 import sys
 import traceback
+import warnings
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_HARDWARE, EXIT_CAMERA, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
 # A prompt answered no; a bug (sysexits' EX_SOFTWARE); a file or device failed (EX_IOERR); stdout's reader left.
@@ -139,6 +143,33 @@ def report(exc: BaseException, debug: bool) -> int:
           + ("" if debug else "\n  run the same command as `gonio --debug ...` for the whole traceback, and please "
              "report it"), file=sys.stderr)  # fmt: skip
     return EXIT_BUG
+
+
+@contextlib.contextmanager
+def plain_warnings() -> Iterator[None]:
+    """Warnings gonio raises for the user (a run store's repair) print as one ``gonio: warning:`` line.
+
+    Python's own form names the source file and line that warned, which tells a user nothing; warnings from
+    elsewhere (a library's) keep it, since there the place is what a bug report needs.
+    """
+    shown = warnings.showwarning
+
+    def show(message: Warning | str, category: type[Warning], filename: str, lineno: int, *rest: Any,
+             **kw: Any) -> None:  # fmt: skip
+        if category.__name__ in _USER_WARNINGS:
+            print(f"gonio: warning: {message}", file=sys.stderr)
+        else:
+            shown(message, category, filename, lineno, *rest, **kw)
+
+    warnings.showwarning = show
+    try:
+        yield
+    finally:
+        warnings.showwarning = shown
+
+
+#: Warning classes (by name: importing them would load the run store for every command) meant for the user.
+_USER_WARNINGS = ("RunStoreWarning",)
 
 
 def _option_strings(parser: argparse.ArgumentParser) -> list[str]:

@@ -137,7 +137,7 @@ def _plan(args: argparse.Namespace) -> int:
     from rig.run.session import make_plan
 
     rig, sweep = _rig(args.rig), load_sweep(args.sweep)
-    plan = make_plan(rig, sweep)
+    plan = make_plan(rig, sweep, progress=not args.quiet)
     print(f"rig: {rig.file.name} ({rig.path}); sweep: {sweep.file.name} ({sweep.path})")
     print(rig.calibration.describe() if rig.calibration else "geometry calibration: none (the rig as drawn)")
     for warning in rig.calibration_warnings():
@@ -183,6 +183,8 @@ def add_run_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     plan.add_argument("sweep", help="sweep file (TOML)")
     plan.add_argument("--rig", help="rig file (TOML); default: the built-in simulated rig")
     plan.add_argument("--list", action="store_true", help="also list every point in run order with its joints")
+    plan.add_argument("--quiet", action="store_true",
+                      help="no progress bar (shown on stderr for a plan of more than 10000 points)")  # fmt: skip
     plan.set_defaults(func=_plan)
     resume = sub.add_parser(
         "resume", help="continue a stopped or killed run from its journal",

@@ -12,7 +12,9 @@ from __future__ import annotations
 import argparse
 import grp
 import os
+import stat
 import sys
+import termios
 from pathlib import Path
 
 from gonio.cli_errors import EXIT_DECLINED, EXIT_HARDWARE, EXIT_OK, CliError, suggestion
@@ -242,7 +244,12 @@ def _check(args: argparse.Namespace) -> int:
         print(f"{port}: no such device (is the adapter plugged in? `ls /dev/serial/by-id/` lists USB serial ports)")
         return EXIT_HARDWARE
     real = Path(os.path.realpath(port))
-    print(f"{port}: {'-> ' + str(real) if real != port else 'present'}")
+    not_serial = serial_port_problem(real)
+    if not_serial:
+        print(f"{port}: {not_serial}; expected a serial port (a terminal device such as /dev/ttyUSB0; "
+              "`ls /dev/serial/by-id/` lists USB serial ports)")  # fmt: skip
+        return EXIT_HARDWARE
+    print(f"{port}: {'-> ' + str(real) + ', a serial port' if real != port else 'present, a serial port'}")
     if not os.access(real, os.R_OK | os.W_OK):
         try:
             group = grp.getgrgid(real.stat().st_gid).gr_name
@@ -269,6 +276,29 @@ def _check(args: argparse.Namespace) -> int:
     if args.ids and not problems:
         return _ping(args)
     return EXIT_HARDWARE if problems else EXIT_OK
+
+
+def serial_port_problem(path: Path) -> str | None:
+    """Why ``path`` is no serial port (what it is instead), or None for a terminal device termios accepts."""
+    mode = path.stat().st_mode
+    if not stat.S_ISCHR(mode):
+        kinds = ((stat.S_ISDIR, "a directory"), (stat.S_ISREG, "a regular file"), (stat.S_ISBLK, "a block device"),
+                 (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket"))  # fmt: skip
+        return f"is {next((name for test, name in kinds if test(mode)), 'not a device')}"
+    try:
+        # O_NONBLOCK: a modem port must not wait for carrier; O_NOCTTY: never become our controlling terminal.
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    except PermissionError:
+        return None  # may be a serial port; the permission check below says what to do
+    except OSError as exc:
+        return f"is a character device that cannot be opened ({exc.strerror})"
+    try:
+        termios.tcgetattr(fd)
+    except termios.error:
+        return "is a character device but not a terminal (termios refuses it: no baud rate, no line settings)"
+    finally:
+        os.close(fd)
+    return None
 
 
 def _common(p: argparse.ArgumentParser, port_required: bool = True) -> None:

@@ -45,6 +45,28 @@ def _speed(text: str) -> float:
     return value
 
 
+def _grbl_axes(text: str) -> str:
+    """Parse --axes: a prefix of GRBL's axis letters XYZABC (the virtual controller has its axes in that order)."""
+    letters = "XYZABC"  # simulator.grbl.settings.AXIS_LETTERS, spelt out: the simulator loads only when a command runs
+    if not text or letters[: len(text)] != text:
+        raise argparse.ArgumentTypeError(
+            f"--axes {text!r}: expected the first 1 to {len(letters)} of GRBL's axis letters {letters} in that "
+            f"order, e.g. X, XY, XYZ or XYZA"
+        )
+    return text
+
+
+def capture_seconds(text: str) -> float:
+    """The exposure of a ``capture SECONDS`` line typed to ``gonio sim rig``; ValueError says what is expected."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"'capture {text}': expected 'capture SECONDS' with SECONDS a positive number")
+    return value
+
+
 def _announce(line: str) -> None:
     print(line, flush=True)
 
@@ -153,9 +175,15 @@ def _answer(tether: Any, text: str) -> None:
     words = text.split()
     if not words:
         return
+    if words[0] == "capture" and len(words) == 2:
+        try:
+            seconds = capture_seconds(words[1])
+        except ValueError as exc:
+            print(f"error: {exc}", flush=True)
+            return
     try:
         if words[0] == "capture" and len(words) == 2:
-            print(tether.shoot(_seconds(words[1])), flush=True)
+            print(tether.shoot(seconds), flush=True)
         elif words[0] == "scene" and len(words) == 2:
             tether.set_scene(words[1])
             print(f"scene {words[1]}", flush=True)
@@ -163,17 +191,6 @@ def _answer(tether: Any, text: str) -> None:
             print(f"error: {text.strip()!r}: expected 'capture SECONDS' or 'scene {'|'.join(SCENE_WORDS)}'", flush=True)
     except ValueError as exc:
         print(f"error: {text.strip()!r}: {exc}", flush=True)
-
-
-def _seconds(word: str) -> float:
-    """An exposure typed on the rehearsal's input: a positive, finite number of seconds."""
-    try:
-        value = float(word)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise ValueError("expected 'capture SECONDS' with SECONDS a positive number")
-    return value
 
 
 #: The material of ``gonio sim merl`` without --rig: a glossy paint (a diffuse base under a GGX dielectric coat).
@@ -227,7 +244,8 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     grbl = kinds.add_parser(
         "grbl", help="virtual GRBL 1.1 motion controller", epilog="Example: gonio sim grbl --axes XYZA --homing"
     )
-    grbl.add_argument("--axes", default="XYZ", help="axis letters (default XYZ)")
+    grbl.add_argument("--axes", type=_grbl_axes, default="XYZ",
+                      help="axis letters, the first of XYZABC in order (default XYZ)")  # fmt: skip
     grbl.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
     grbl.add_argument(
         "--homing",

@@ -146,6 +146,7 @@ class Tether:
             camera_id="gonio rehearsal camera (RAW)", min_exposure_s=1e-6, max_exposure_s=3600.0,
         )  # fmt: skip
         self._background: npt.NDArray[np.float32] | None = None
+        self._client = 0
 
     def _patch(self, full_frame: bool = False) -> SensorPatch:
         sim = self.sim
@@ -175,6 +176,7 @@ class Tether:
                 elif scene == "dark":
                     flat.darken()
             self.scene = scene
+            self.camera.restart_streams()
 
     def shoot(self, exposure_s: float, gain: float = 1.0) -> Path:
         """Expose one frame (seconds, linear gain) and write it as a DNG of the whole sensor; returns its path."""
@@ -215,8 +217,19 @@ class Tether:
         return dataclasses.replace(frame, data=full, origin_xy=(0, 0), cfa_pattern=self.camera.cfa_pattern)
 
     def answer_requests(self) -> list[Path]:
-        """Shoot every shot request the folder camera has left (oldest first); returns the frames written."""
-        return [self.shoot(r.exposure_s, r.gain) for r in take_requests(self.folder)]
+        """Shoot every shot request the folder camera has left (oldest first); returns the frames written.
+
+        Noise is drawn per state of the rig (:meth:`SimulatedRig.state_key`), a stream restarted by each
+        scene an operator sets and by each new controller process: a resumed run's readings then see the
+        draws an uninterrupted run's saw, as on the simulated backend, whose camera lives with the run.
+        """
+        shot = []
+        for request in take_requests(self.folder):
+            if request.client != self._client:
+                self._client = request.client
+                self.camera.restart_streams()
+            shot.append(self.shoot(request.exposure_s, request.gain))
+        return shot
 
     def serve(self, stop: threading.Event, poll_s: float = 0.005, on_error: Callable[[str], None] = print) -> None:
         """Answer shot requests until ``stop`` is set (polling the folder every ``poll_s`` wall seconds)."""

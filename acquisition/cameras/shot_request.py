@@ -27,11 +27,12 @@ REQUEST_FORMAT = 1
 
 @dataclass(frozen=True)
 class ShotRequest:
-    """One requested frame: its index and the exposure (s) and gain to shoot it at."""
+    """One requested frame: its index, the exposure (s) and gain to shoot it at, and who asked (a process id)."""
 
     index: int
     exposure_s: float
     gain: float
+    client: int = 0
 
 
 def _shutter(exposure_s: float) -> str:
@@ -76,7 +77,8 @@ def take_requests(folder: Path) -> list[ShotRequest]:
             continue
         if isinstance(body, dict) and body.get("format") == REQUEST_FORMAT:
             try:
-                taken.append(ShotRequest(int(body["index"]), float(body["exposure_s"]), float(body["gain"])))
+                client = int(path.stem.rsplit("-", 1)[-1])
+                taken.append(ShotRequest(int(body["index"]), float(body["exposure_s"]), float(body["gain"]), client))
             except (KeyError, TypeError, ValueError):
                 continue
     return taken

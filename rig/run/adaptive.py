@@ -97,6 +97,8 @@ class AdaptiveSettings:
                 f"adaptive settings: need 1 <= initial ({self.initial}) <= budget ({self.budget}), batch "
                 f"({self.batch}) >= 1 and candidates ({self.candidates}) >= budget"
             )
+        if not 0.0 < self.max_theta_deg <= 90.0:
+            raise ValueError(f"adaptive settings: max_theta_deg ({self.max_theta_deg}) must be a zenith in (0, 90]")
         if not self.target_snr > 0 or (self.reference_snr is not None and not self.reference_snr > 0):
             raise ValueError(f"adaptive settings: target_snr ({self.target_snr}) and reference_snr "
                              f"({self.reference_snr}) must be > 0")  # fmt: skip
@@ -247,7 +249,8 @@ def round_rig(rig: RigConfig, index: int) -> RigConfig:
     """
     if index == 0:
         return rig
-    return replace_table(rig, "simulation", seed=(rig.file.simulation.seed * 1_000_003 + index) % 2**63)
+    # Modulo 2**32: a rig file's seed range (Mitsuba's sampler takes a uint32).
+    return replace_table(rig, "simulation", seed=(rig.file.simulation.seed * 1_000_003 + index) % 2**32)
 
 
 def with_reference_snr(rig: RigConfig, snr: float | None) -> RigConfig:
@@ -276,11 +279,16 @@ def run_adaptive(
 
     ``metadata``: the sweep's ``[metadata]`` (sample, operator, notes, ...), laid over the rig file's.
     """
+    from rig.run.session import check_rig
+
     s = settings or AdaptiveSettings()
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise ConfigError(f"{out}: exists and is not empty; an adaptive sweep needs a fresh directory "
                          "(an interrupted one continues with gonio adaptive --resume)")  # fmt: skip
+    # Every input is read before the directory exists (a failed start must leave nothing a retry trips on).
+    check_rig(with_reference_snr(rig, s.reference_snr))
+    _pool(rig, s)
     out.mkdir(parents=True, exist_ok=True)
     meta = {**rig.file.metadata.as_dict(), **(metadata or {})}
     doc = new_state(rig, spec.name if spec is not None else "auto", s, meta)
@@ -310,6 +318,14 @@ def resume_adaptive(
     return _rounds(rig_of(doc, out), out, spec, s, doc, pairs=pairs, on_round=on_round, log=log)
 
 
+def _pool(rig: RigConfig, s: AdaptiveSettings) -> FloatArray:
+    """The sweep's reachable candidates; ConfigError if fewer than the budget."""
+    pool = candidate_points(rig.geometry, s.candidates, max_theta_deg=s.max_theta_deg, seed=s.seed)
+    if len(pool) < s.budget:
+        raise ConfigError(f"{rig.path}: only {len(pool)} of {s.candidates} candidates are reachable; need {s.budget}")
+    return pool
+
+
 def _rounds(
     rig: RigConfig,
     out: Path,
@@ -323,9 +339,7 @@ def _rounds(
 ) -> AdaptiveResult:
     say = log or (lambda msg: print(msg, file=sys.stderr))
     pairs = pairs or error_pairs(max_theta_deg=s.max_theta_deg, seed=s.seed + 1)
-    pool = candidate_points(rig.geometry, s.candidates, max_theta_deg=s.max_theta_deg, seed=s.seed)
-    if len(pool) < s.budget:
-        raise ConfigError(f"{rig.path}: only {len(pool)} of {s.candidates} candidates are reachable; need {s.budget}")
+    pool = _pool(rig, s)
     rig = with_reference_snr(rig, s.reference_snr)
     result = AdaptiveResult()
     rows: list[dict[str, Any]] = []

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import datetime
 import difflib
+import inspect
 import re
 import tomllib
 import typing
@@ -36,8 +37,8 @@ from rig.instrument.calibration_file import (
 from rig.instrument.geometry import GeometryError, JointLimits, RigGeometry
 from rig.instrument.links.dynamixel_table import X_SERIES
 from rig.run import registry
+from rig.run.config_schema import AxisTable, RigFile, SweepFile, camera_keys
 from rig.run.config_schema import Camera as CameraTable
-from rig.run.config_schema import RigFile, SweepFile, camera_keys
 
 FloatArray = npt.NDArray[np.float64]
 M = TypeVar("M", bound=BaseModel)
@@ -82,6 +83,39 @@ def _allowed_keys(model: type[BaseModel], loc: tuple[int | str, ...]) -> list[st
     return sorted(current.model_fields) if current is not None else []
 
 
+#: pydantic's error types that say only what type was wanted; the key's bounds are added to them.
+_TYPE_ERRORS = ("int_type", "int_from_float", "int_parsing", "float_type", "finite_number", "float_parsing")
+
+
+def _range(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:
+    """`` from 1 to 20000000`` (or ``>= 0`` ...) for the key at ``loc`` if its schema bounds it, else ``""``."""
+    if not loc or not isinstance(loc[-1], str):
+        return ""
+    current: Any = model
+    parts = list(loc[:-1])
+    while parts and current is not None:
+        part = parts.pop(0)
+        info = current.model_fields.get(part) if isinstance(part, str) else None
+        ann = info.annotation if info is not None else None
+        if typing.get_origin(ann) is dict:
+            ann, parts = typing.get_args(ann)[1], parts[1:]
+        current = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
+    info = current.model_fields.get(loc[-1]) if current is not None else None
+    if info is None:
+        return ""
+    metadata = list(info.metadata)
+    for arg in typing.get_args(info.annotation):  # an optional key: Annotated[float, Field(...)] | None
+        metadata += list(getattr(arg, "__metadata__", ()))
+        for inner in getattr(arg, "__metadata__", ()):
+            metadata += list(getattr(inner, "metadata", ()))
+    bounds = {type(m).__name__: getattr(m, type(m).__name__.lower()) for m in metadata
+              if type(m).__name__ in ("Gt", "Ge", "Lt", "Le")}  # fmt: skip
+    shown = {k: str(v) if isinstance(v, int) else f"{v:g}" for k, v in bounds.items()}
+    lo = f">= {shown['Ge']}" if "Ge" in shown else f"> {shown['Gt']}" if "Gt" in shown else ""
+    hi = f"<= {shown['Le']}" if "Le" in shown else f"< {shown['Lt']}" if "Lt" in shown else ""
+    return f" ({' and '.join(x for x in (lo, hi) if x)})" if lo or hi else ""
+
+
 def _did_you_mean(word: Any, known: list[str]) -> str:
     """``"; did you mean 'x'?"`` for the closest known name to a misspelt key or value, else ``""``."""
     if not isinstance(word, str):
@@ -122,6 +156,8 @@ def _messages(path: Path, model: type[BaseModel], err: ValidationError) -> str:
             shown = _short(_plain(e["input"])) if not isinstance(e["input"], dict) else "(table)"
             head = f"{path}: {key} = {shown}: expected "
             text = msg[0].lower() + msg[1:] if msg else "a valid value"
+            if e["type"] in _TYPE_ERRORS:
+                text += _range(model, loc)
             if e["type"] == "literal_error":
                 text += _did_you_mean(e["input"], re.findall(r"'([^']*)'", str(e.get("ctx", {}).get("expected", ""))))
             same = [i for i, line in enumerate(lines) if line.startswith(head)]
@@ -337,6 +373,8 @@ def _axes(path: Path, cfg: RigFile, geometry: RigGeometry) -> tuple[Axis, ...]:
                     f"{path}: axes.{name}.units_per_degree: missing; a GRBL axis needs its steps per degree"
                 )
             upd = X_SERIES.ticks_per_degree
+        if not letters and abs(upd - X_SERIES.ticks_per_degree) <= 1e-9 * X_SERIES.ticks_per_degree:
+            _check_servo_profile(path, name, table)
         try:
             out.append(Axis(
                 name=name, address=table.id if table.id is not None else str(table.letter), units_per_degree=upd,
@@ -352,6 +390,28 @@ def _axes(path: Path, cfg: RigFile, geometry: RigGeometry) -> tuple[Axis, ...]:
         dup = next(i for i in ids if ids.count(i) > 1)
         raise ConfigError(f"{path}: axes: address {dup!r} is used by two joints; expected one servo per joint")
     return tuple(out)
+
+
+def _check_servo_profile(path: Path, name: str, table: AxisTable) -> None:
+    """Refuse a speed or acceleration the XM430-W350 cannot take (the servo answers a Data Limit Error mid-run).
+
+    The servo is profiled in motor terms: the joint's value times ``gear_ratio``, as the link writes it.
+    """
+    g = table.gear_ratio
+    geared = f" (x gear_ratio {g:g} = {{motor:g}} at the servo)" if g != 1 else ""
+    checks = (
+        ("max_speed_deg_s", table.max_speed_deg_s, X_SERIES.velocity_units, X_SERIES.velocity_limit_units,
+         X_SERIES.max_speed_deg_s, "deg/s", "its Velocity Limit, 200 x 0.229 rev/min"),
+        ("max_accel_deg_s2", table.max_accel_deg_s2, X_SERIES.accel_units, X_SERIES.accel_limit_units,
+         X_SERIES.max_accel_deg_s2, "deg/s^2", "its Profile Acceleration register's largest value, 32767 x 214.577 "
+         "rev/min^2"),
+    )  # fmt: skip
+    for key, value, units, limit_units, limit, unit, why in checks:
+        if limit_units is not None and units(value * g) > limit_units:
+            raise ConfigError(
+                f"{path}: axes.{name}.{key} = {value:g}{geared.format(motor=value * g)}: an XM430-W350 takes at "
+                f"most {limit:g} {unit} ({why}); expected at most {limit / g:g} {unit} for this joint"
+            )
 
 
 def load_rig(path: str | Path) -> RigConfig:
@@ -387,6 +447,8 @@ def rig_config(
     if cfg.reference.kind not in ("manual", "none", *traits.references):
         raise ConfigError(f"{p}: reference.kind = {cfg.reference.kind!r}: only a rig whose backend provides it has "
                           f"a {cfg.reference.kind} reference")  # fmt: skip
+    if "material" in cfg.simulation.model_fields_set:
+        _material(cfg, p)  # here, not when the simulator opens: a bad parameter must stop a run before it starts
     if calibration is None and cfg.geometry.calibration is not None:
         named = Path(cfg.geometry.calibration)
         try:
@@ -445,15 +507,42 @@ def sweep_config(cfg: SweepFile, path: str | Path = "<sweep>") -> SweepConfig:
 
 def material_from(rig: RigConfig) -> Model:
     """The sample's model from ``[simulation.material]``: a model class of the model module and its parameters."""
-    table = rig.file.simulation.material
+    return _material(rig.file, rig.path)
+
+
+def _material(cfg: RigFile, path: Path) -> Model:
+    table = cfg.simulation.material
     cls = getattr(model, table.model, None)
     if not (isinstance(cls, type) and issubclass(cls, Model)) or cls is Model:
         names = sorted(n for n in dir(model) if isinstance(getattr(model, n), type)
                        and issubclass(getattr(model, n), Model) and getattr(model, n) is not Model)  # fmt: skip
         raise ConfigError(
-            f"{rig.path}: simulation.material.model = {table.model!r}: expected one of {', '.join(names)}"
+            f"{path}: simulation.material.model = {table.model!r}: expected one of {', '.join(names)}"
+            f"{_did_you_mean(table.model, names)}"
         )
+    given = table.parameters()
+    accepted = _parameters(cls)
+    where = f"{path}: simulation.material"
+    for key, value in given.items():
+        if key not in accepted:
+            raise ConfigError(
+                f"{where}.{key} = {_short(_plain(value))}: {cls.__name__} has no parameter {key!r}; its parameters "
+                f"are {', '.join(accepted) or 'none'}{_did_you_mean(key, list(accepted))}"
+            )
+    missing = [k for k, required in accepted.items() if required and k not in given]
+    if missing:
+        raise ConfigError(f"{where}: {cls.__name__} needs {', '.join(missing)}; its parameters are "
+                          f"{', '.join(accepted)}")  # fmt: skip
     try:
-        return cls(**table.parameters())
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{rig.path}: simulation.material: {exc}") from None
+        return cls(**given)
+    except (TypeError, ValueError, ArithmeticError) as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+
+
+def _parameters(cls: type[Model]) -> dict[str, bool]:
+    """A model class's keyword parameters, each with whether it is required (no default)."""
+    out: dict[str, bool] = {}
+    for name, p in inspect.signature(cls).parameters.items():
+        if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY):
+            out[name] = p.default is p.empty
+    return out

@@ -28,9 +28,16 @@ from acquisition.cameras import registry as cameras
 from acquisition.cameras.trigger import check_callable, check_command
 from rig.run import registry
 
-Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-Finite = Annotated[float, Field(allow_inf_nan=False)]
+# Upper bounds far beyond any instrument (a kilometre, a day, a billion electrons): they keep the arithmetic
+# that follows finite, so an absurd value is a named error here instead of an overflow somewhere later.
+Pos = Annotated[float, Field(gt=0, le=1e9, allow_inf_nan=False)]
+NonNeg = Annotated[float, Field(ge=0, le=1e9, allow_inf_nan=False)]
+Finite = Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)]
+Metres = Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]
+Seconds = Annotated[float, Field(gt=0, le=86400, allow_inf_nan=False)]
+Levels = Annotated[float, Field(ge=0, le=2**32, allow_inf_nan=False)]
+#: A seed numpy, the simulated sensor and Mitsuba's sampler (a uint32) all take.
+Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
 Deg90 = Annotated[float, Field(ge=0, le=90, allow_inf_nan=False)]
 Pair = tuple[Finite, Finite]
 Channels = (
@@ -75,10 +82,10 @@ class Geometry(Strict):
     """
 
     layout: Literal["four_axis", "in_plane", "fixed_camera"] = "four_axis"
-    light_radius_m: Pos = 0.5
-    camera_radius_m: Pos = 0.5
-    sample_width_m: Pos = 0.05
-    sample_height_m: Pos = 0.05
+    light_radius_m: Metres = 0.5
+    camera_radius_m: Metres = 0.5
+    sample_width_m: Metres = 0.05
+    sample_height_m: Metres = 0.05
     min_separation_deg: Annotated[float, Field(ge=0, lt=180)] = 8.0
     max_zenith_deg: Annotated[float, Field(gt=0, lt=90)] = 85.0
     camera_fov_deg: Annotated[float, Field(gt=0, lt=180)] = 8.0
@@ -104,7 +111,7 @@ class Link(Strict):
 
     kind: str = "simulated"
     port: str | None = None
-    baudrate: Annotated[int, Field(gt=0)] = 1_000_000
+    baudrate: Annotated[int, Field(gt=0, le=20_000_000)] = 1_000_000  # the fastest serial adapters: 12 Mbaud
     retries: Annotated[int, Field(ge=0, le=20)] = 2
     latency_timer_ms: Annotated[float, Field(ge=0, le=1000)] = 16.0
     poll_interval_s: Annotated[float, Field(gt=0, le=5)] = 0.02
@@ -144,7 +151,7 @@ class AxisTable(Strict):
     max_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] | None = None
     max_speed_deg_s: Annotated[float, Field(gt=0, le=1e5, allow_inf_nan=False)] = 60.0
     max_accel_deg_s2: Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)] = 120.0
-    tolerance_deg: Pos = 0.2
+    tolerance_deg: Annotated[float, Field(gt=0, le=90, allow_inf_nan=False)] = 0.2
 
     @model_validator(mode="after")
     def _one_address(self) -> AxisTable:
@@ -156,12 +163,13 @@ class AxisTable(Strict):
 class Noise(Strict):
     """``[camera.noise]``: the sensor's gain (e-/DN), noise (e-), dark current (e-/s) and levels (DN)."""
 
-    e_per_dn: Pos = 4.0
-    read_noise_e: NonNeg = 3.0
-    dark_current_e_per_s: NonNeg = 0.5
-    black_level_dn: NonNeg = 512.0
-    white_level_dn: Pos = 16383.0
-    full_well_e: Pos = 60000.0
+    # A gain of 1e-3 e-/DN to 1e5 e-/DN spans every sensor there is; beyond it the noise model's sums overflow.
+    e_per_dn: Annotated[float, Field(ge=1e-3, le=1e5, allow_inf_nan=False)] = 4.0
+    read_noise_e: Annotated[float, Field(ge=0, le=1e6, allow_inf_nan=False)] = 3.0
+    dark_current_e_per_s: Annotated[float, Field(ge=0, le=1e9, allow_inf_nan=False)] = 0.5
+    black_level_dn: Levels = 512.0
+    white_level_dn: Annotated[float, Field(gt=0, le=2**32, allow_inf_nan=False)] = 16383.0
+    full_well_e: Annotated[float, Field(gt=0, le=1e9, allow_inf_nan=False)] = 60000.0
 
 
 #: [camera] keys every backend reads; the others belong to one backend or a few (``CameraBackend.keys``).
@@ -187,9 +195,9 @@ class Camera(Strict):
     """
 
     backend: str = "simulated"
-    min_exposure_s: Pos = 1e-5
-    max_exposure_s: Pos = 30.0
-    overhead_s: NonNeg = 0.0
+    min_exposure_s: Seconds = 1e-5
+    max_exposure_s: Seconds = 30.0
+    overhead_s: Annotated[float, Field(ge=0, le=3600, allow_inf_nan=False)] = 0.0
     #: Wall seconds a capture may take beyond twice its exposure before the run stops on a camera fault.
     capture_timeout_s: Annotated[float, Field(gt=0, le=3600)] = 60.0
     roi: tuple[int, int, int, int] | None = None
@@ -203,14 +211,14 @@ class Camera(Strict):
     # folder
     folder: str | None = None
     trigger: tuple[str, ...] | str | None = None
-    trigger_timeout_s: Pos | None = None
+    trigger_timeout_s: Seconds | None = None
     pattern: tuple[str, ...] | None = None
     poll_interval_s: Annotated[float, Field(gt=0, le=60)] | None = None
     stable_polls: Annotated[int, Field(ge=1, le=100)] | None = None
-    settle_s: NonNeg | None = None
+    settle_s: Annotated[float, Field(ge=0, le=3600, allow_inf_nan=False)] | None = None
     accept_unconfirmed_exposure: bool | None = None
     # opencv
-    device: Annotated[int, Field(ge=0)] | str | None = None
+    device: Annotated[int, Field(ge=0, le=65535)] | str | None = None
     api: Literal["any", "v4l2", "images", "ffmpeg", "gstreamer"] | None = None
     strict: bool | None = None
     # gphoto2
@@ -221,7 +229,7 @@ class Camera(Strict):
     # genicam
     cti_file: str | None = None
     serial_number: str | None = None
-    index: Annotated[int, Field(ge=0)] | None = None
+    index: Annotated[int, Field(ge=0, le=65535)] | None = None
     pixel_format: str | None = None
     # more than one backend
     timeout_s: Annotated[float, Field(gt=0, le=3600)] | None = None
@@ -308,9 +316,9 @@ class Reference(Strict):
     albedo_std_error: Annotated[float, Field(ge=0, lt=1)] = 0.005
     theta_i_deg: Annotated[float, Field(ge=0, lt=85)] = 0.0
     theta_o_deg: Annotated[float, Field(ge=0, lt=85)] = 30.0
-    every: Annotated[int, Field(ge=0)] = 50
-    drift_sigma: Pos = 4.0
-    target_snr: Pos | None = None
+    every: Annotated[int, Field(ge=0, le=1_000_000)] = 50
+    drift_sigma: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = 4.0
+    target_snr: Annotated[float, Field(gt=0, le=1e5, allow_inf_nan=False)] | None = None
 
 
 class Material(Strict):
@@ -368,12 +376,12 @@ class SimulatedSensor(Strict):
     ``nonlinearity`` the response's relative compression at full well (``simulator.camera.pixels``).
     """
 
-    e_per_dn: Pos | None = None
-    read_noise_e: NonNeg | None = None
-    dark_current_e_per_s: NonNeg | None = None
-    black_level_dn: NonNeg | None = None
-    white_level_dn: Pos | None = None
-    full_well_e: Pos | None = None
+    e_per_dn: Annotated[float, Field(ge=1e-3, le=1e5, allow_inf_nan=False)] | None = None
+    read_noise_e: Annotated[float, Field(ge=0, le=1e6, allow_inf_nan=False)] | None = None
+    dark_current_e_per_s: Annotated[float, Field(ge=0, le=1e9, allow_inf_nan=False)] | None = None
+    black_level_dn: Levels | None = None
+    white_level_dn: Annotated[float, Field(gt=0, le=2**32, allow_inf_nan=False)] | None = None
+    full_well_e: Annotated[float, Field(gt=0, le=1e9, allow_inf_nan=False)] | None = None
     vignetting: Annotated[float, Field(ge=0, le=0.9)] = 0.0
     prnu_rms: Annotated[float, Field(ge=0, le=0.2)] = 0.0
     nonlinearity: Annotated[float, Field(ge=0, le=0.2)] = 0.0
@@ -395,9 +403,9 @@ class Simulation(Strict):
     misalignment: Misalignment = Misalignment()
     light_intensity_w_sr: Pos = 1.0
     light_kind: Literal["point", "spot"] = "point"
-    time_scale: Pos | None = None
-    fixed_pattern_dn: NonNeg = 0.0
-    seed: Annotated[int, Field(ge=0)] = 0
+    time_scale: Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)] | None = None
+    fixed_pattern_dn: Levels = 0.0
+    seed: Seed = 0
     link: Literal["dynamixel", "grbl"] = "dynamixel"
 
 
@@ -466,8 +474,13 @@ class RigFile(Strict):
     simulation: Simulation = Simulation()
 
 
+#: The most points a sweep may expand to: far beyond any real sweep (a dense grid of 10^4 points runs for days),
+#: short of what would exhaust memory generating and planning it.
+MAX_SWEEP_POINTS = 1_000_000
+
+
 class Sweep(Strict):
-    """``[sweep]``: which BRDF directions to measure, in degrees."""
+    """``[sweep]``: which BRDF directions to measure, in degrees (at most MAX_SWEEP_POINTS combinations)."""
 
     kind: Literal["grid", "in_plane", "rusinkiewicz", "list"]
     theta_i_deg: tuple[Finite, ...] | None = None
@@ -501,6 +514,14 @@ class Sweep(Strict):
         stray = [k for k in optional - allowed if getattr(self, k) is not None]
         if stray:
             raise ValueError(f"{', '.join(sorted(stray))} has no meaning in a {self.kind!r} sweep")
+        # Counted from the lists' lengths, before a point is generated: a product of long lists would need
+        # gigabytes just to hold the combinations.
+        keys = [k for k in (*needed, *sorted(allowed - set(needed))) if getattr(self, k) is not None]
+        count = math.prod(len(getattr(self, k)) for k in keys)
+        if count > MAX_SWEEP_POINTS:
+            lengths = " x ".join(f"{k} ({len(getattr(self, k))})" for k in keys)
+            raise ValueError(f"{lengths} = {count} points: expected at most {MAX_SWEEP_POINTS} points in a sweep "
+                             "(shorten the lists, or split the sweep into several runs)")  # fmt: skip
         return self
 
 
@@ -508,10 +529,10 @@ class Capture(Strict):
     """``[capture]``: how each point is exposed: target SNR, frames, darks, images kept."""
 
     target_snr: Annotated[float, Field(gt=0, le=1e5)] = 200.0
-    exposures_s: tuple[Pos, ...] | None = None
+    exposures_s: tuple[Seconds, ...] | None = None
     max_frames: Annotated[int, Field(ge=1, le=64)] = 5
     dark_frames: Annotated[int, Field(ge=0, le=16)] = 1
-    first_exposure_s: Pos = 0.01
+    first_exposure_s: Seconds = 0.01
     save_images: bool = False
     include_cosine: bool = False
 

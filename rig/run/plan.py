@@ -27,7 +27,7 @@ plan_alignment.py.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -332,6 +332,10 @@ def _reference_positions(n: int, every: int) -> tuple[int, ...]:
     return tuple(sorted({0, *range(every, n, every), n}))
 
 
+#: What plan_sweep does, in order (its ``on_stage`` hears each name as it begins).
+PLAN_STAGES = ("kinematics", "arm sides", "ordering", "swept paths", "time estimate")
+
+
 def plan_sweep(
     directions_deg: FloatArray,
     geometry: RigGeometry,
@@ -349,6 +353,7 @@ def plan_sweep(
     isotropic: bool = False,
     branch: Branch = "camera_cw",
     alignment: Alignment | None = None,
+    on_stage: Callable[[str], None] | None = None,
 ) -> Plan:
     """Plan rows (N, 4) of BRDF angles in degrees on a rig: reachability, order, and time estimate in seconds.
 
@@ -361,8 +366,10 @@ def plan_sweep(
     turned pair. ``branch`` picks the four-axis solution (see ``rig.instrument.kinematics``). ``alignment``
     (a geometry calibration's) corrects each reachable point's joints so the real rig measures the wanted
     directions (``rig.instrument.alignment.aligned_inverse``); a point it cannot reach within 0.01 deg is
-    skipped as ``calibrated_miss``.
+    skipped as ``calibrated_miss``. ``on_stage`` is told the name of each of the ``PLAN_STAGES`` as it begins
+    (a progress bar for a large plan).
     """
+    stage = on_stage or (lambda _name: None)
     rows = np.asarray(directions_deg, dtype=np.float64)
     if rows.ndim != 2 or rows.shape[1] != 4:
         raise ValueError(f"directions_deg must have shape (N, 4) (theta_i, phi_i, theta_o, phi_o), got {rows.shape}")
@@ -388,6 +395,7 @@ def plan_sweep(
             if name in by_name:
                 by_name[name].check(float(np.asarray(angle)))
 
+    stage(PLAN_STAGES[0])
     sol = _solve(geometry, rows, start, branch, isotropic)
     reason = np.asarray(sol.reason).reshape(len(rows)).copy()
     detail: dict[int, str] = {}
@@ -403,6 +411,7 @@ def plan_sweep(
             reason[i] = Reason.JOINT_LIMIT.value
             detail[int(i)] = _axis_detail(name, float(values[i]), s0, by_name.get(name))
 
+    stage(PLAN_STAGES[1])
     good = np.flatnonzero(reason == "")
     moving = [n for n in names if n in by_name]
     speed, accel = _limits(by_name, moving)
@@ -434,10 +443,12 @@ def plan_sweep(
     def as_joints(x: FloatArray) -> Joints:
         return Joints.from_dict({**held, **{n: float(v) for n, v in zip(moving, x, strict=True)}})
 
+    stage(PLAN_STAGES[2])
     perm = np.arange(len(good), dtype=np.intp)
     if order:
         perm = np.asarray(order_path(xg_all, s, speed, accel, coordinated), dtype=np.intp)
     x = xg_all[perm]
+    stage(PLAN_STAGES[3])
     kept, via = safe_sequence(paths, s, x)
     for dropped in np.flatnonzero(~kept):
         at = int(good[perm[dropped]])
@@ -461,6 +472,7 @@ def plan_sweep(
         nodes = np.vstack([a[None, :], *[leg[None, :] for leg in (legs or [b])]])
         return float(step_times(nodes[:-1], nodes[1:], speed, accel, coordinated).sum())
 
+    stage(PLAN_STAGES[4])
     path = np.vstack([s[None, :], x])
     steps = step_times(path[:-1], path[1:], speed, accel, coordinated)
     for pos, legs in via_kept.items():

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -91,20 +92,53 @@ def _per_point_exposure_s(rig: RigConfig, sweep: SweepConfig) -> float:
     return float(sum(frames) + darks + overhead)
 
 
-def make_plan(rig: RigConfig, sweep: SweepConfig) -> Plan:
-    """The ordered plan with unreachable points listed and a time estimate (nothing moves)."""
+#: A plan of more points than this shows its stages on a progress bar (ordering 10^4 points takes seconds).
+PROGRESS_POINTS = 10_000
+
+
+@contextlib.contextmanager
+def _plan_bar(points: int, shown: bool) -> Iterator[Callable[[str], None] | None]:
+    """A tqdm bar on stderr over the planner's stages, for a plan large enough to take a while."""
+    if not shown or points <= PROGRESS_POINTS:
+        yield None
+        return
+    import sys
+
+    from tqdm.auto import tqdm
+
+    from rig.run.plan import PLAN_STAGES
+
+    with tqdm(total=len(PLAN_STAGES), desc=f"planning {points} points", unit="stage", file=sys.stderr,
+              dynamic_ncols=True) as bar:  # fmt: skip
+
+        def stage(name: str) -> None:
+            if bar.n or name != PLAN_STAGES[0]:
+                bar.update(1)
+            bar.set_postfix_str(name, refresh=True)
+
+        yield stage
+        bar.update(bar.total - bar.n)
+
+
+def make_plan(rig: RigConfig, sweep: SweepConfig, *, progress: bool = False) -> Plan:
+    """The ordered plan with unreachable points listed and a time estimate (nothing moves).
+
+    ``progress``: a bar on stderr over the planner's stages when the sweep has more than PROGRESS_POINTS points.
+    """
     from rig.run.backends import backend
     from rig.run.plan import plan_sweep
 
     ref = reference_settings(rig)
     per_point = _per_point_exposure_s(rig, sweep)
-    return plan_sweep(
-        sweep.directions_deg, rig.geometry, rig.axes, settle_s=rig.file.link.settle_s,
-        exposure_s_per_point=per_point, reference_every=ref.every if ref else 0,
-        reference_s=per_point if ref else 0.0, reference_joints=ref.joints if ref else None,
-        order=sweep.file.sweep.order, isotropic=sweep.file.sweep.isotropic,
-        coordinated=backend(rig.file.link.kind).for_file(rig.file).coordinated, alignment=rig.alignment,
-    )  # fmt: skip
+    with _plan_bar(len(sweep.directions_deg), progress) as stage:
+        return plan_sweep(
+            sweep.directions_deg, rig.geometry, rig.axes, settle_s=rig.file.link.settle_s,
+            exposure_s_per_point=per_point, reference_every=ref.every if ref else 0,
+            reference_s=per_point if ref else 0.0, reference_joints=ref.joints if ref else None,
+            order=sweep.file.sweep.order, isotropic=sweep.file.sweep.isotropic,
+            coordinated=backend(rig.file.link.kind).for_file(rig.file).coordinated, alignment=rig.alignment,
+            on_stage=stage,
+        )  # fmt: skip
 
 
 def instruments(rig: RigConfig, start: StartPose | None = None) -> contextlib.AbstractContextManager[Instruments]:
@@ -149,12 +183,26 @@ def options_for(rig: RigConfig, sweep: SweepConfig, progress: bool) -> RunOption
                       capture_timeout_s=rig.file.camera.capture_timeout_s)  # fmt: skip
 
 
-def _run(store: RunStore, rig: RigConfig, sweep: SweepConfig, plan: Plan, progress: bool) -> RunSummary:
+def check_rig(rig: RigConfig) -> None:
+    """Read what a run reads from the rig file's other files and tables (camera calibration and flat field, the
+    reference pose) once, so a mistake there is a ConfigError before any run directory exists."""
+    from rig.run.calibrate import camera_flat_field, camera_noise
+
+    camera_noise(rig)
+    camera_flat_field(rig)
+    reference_settings(rig)
+
+
+def _run(
+    store: RunStore, rig: RigConfig, sweep: SweepConfig, plan: Plan, progress: bool,
+    capture: CaptureSettings | None = None,
+) -> RunSummary:  # fmt: skip
     from rig.run.runner import Runner
 
+    capture = capture or capture_settings(rig, sweep)
     with instruments(rig, start=last_pose(store)) as inst:
         runner = Runner(
-            plan, store, inst.link, inst.camera, inst.clock, rig.geometry, capture_settings(rig, sweep),
+            plan, store, inst.link, inst.camera, inst.clock, rig.geometry, capture,
             reference=reference_settings(rig) if inst.target is not None else None, target=inst.target,
             options=options_for(rig, sweep, progress), calibration=rig.calibration, axes=rig.axes,
         )  # fmt: skip
@@ -163,11 +211,15 @@ def _run(store: RunStore, rig: RigConfig, sweep: SweepConfig, plan: Plan, progre
 
 def start_run(rig: RigConfig, sweep: SweepConfig, out: str | Path, *, progress: bool = True) -> RunSummary:
     """Plan, create the run directory ``out`` and measure; raises RunStopped if it stops early."""
-    plan = make_plan(rig, sweep)
+    # Every input is read before the directory exists: a mistake found after would leave a run that is not
+    # one, which a retry calls "already holds a run" and a resume fails on again.
+    check_rig(rig)
+    capture = capture_settings(rig, sweep)
+    plan = make_plan(rig, sweep, progress=progress)
     if not plan.points:
         raise ConfigError(f"{sweep.path}: no reachable point on this rig ({len(plan.skipped)} unreachable)")
     with RunStore.create(out, manifest(rig, sweep, plan, options_for(rig, sweep, progress))) as store:
-        return _run(store, rig, sweep, plan, progress)
+        return _run(store, rig, sweep, plan, progress, capture)
 
 
 def configs_of(store: RunStore) -> tuple[RigConfig, SweepConfig]:
@@ -188,7 +240,7 @@ def resume_run(path: str | Path, *, progress: bool = True) -> RunSummary:
             raise RunFinished(f"{path}: the run is finished ({store.path / 'samples.csv'}); nothing to resume")
         check_records(store.records(), store.path / JOURNAL)  # before anything is opened or moved
         rig, sweep = configs_of(store)
-        plan = make_plan(rig, sweep)
+        plan = make_plan(rig, sweep, progress=progress)
         if len(plan.points) != store.manifest["points"]:
             raise RunStoreError(f"{path}: the plan rebuilt from the manifest has {len(plan.points)} points, "
                              f"the run had {store.manifest['points']}: was gonio upgraded in between?")  # fmt: skip

@@ -103,6 +103,17 @@ def _check_empty(run: Path) -> None:
         raise RunStoreError(f"{run}: not empty ({', '.join(names[:5])}); a new run needs an empty directory")
 
 
+def _cannot_create(run: Path, exc: OSError) -> OSError:
+    """The OSError of a run directory that cannot be made, naming it (not the hidden staging sibling).
+
+    An OSError, not a RunStoreError: a full disk, a read-only or virtual filesystem, a missing permission are
+    the system's refusals (exit 74 with the path and the reason), not a mistake in the user's input.
+    """
+    failed = exc.filename if exc.filename is not None and not Path(exc.filename).name.startswith(".") else run
+    what = "the run directory" if failed == run else f"the run directory {run}"
+    return OSError(exc.errno, f"cannot create {what}: {exc.strerror or exc}", str(failed))
+
+
 def _lock_is_free(lock: Path) -> bool:
     """Whether nobody holds ``lock`` (True also when it does not exist)."""
     try:
@@ -185,9 +196,12 @@ class RunStore:
         parent = run.parent
         missing = [p for p in (parent, *parent.parents) if not p.exists()]
         try:
+            blocking = next((p for p in (parent, *parent.parents) if p.exists() and not p.is_dir()), None)
+            if blocking is not None:  # mkdir would say "File exists", which hides why
+                raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(blocking))
             parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise RunStoreError(f"{run}: cannot create the run directory: {exc}") from exc
+            raise _cannot_create(run, exc) from exc
         for new in reversed(missing):  # make each new directory's entry durable in its parent
             _fsync_dir(new.parent)
         if not _lock_is_free(run / LOCK):
@@ -198,7 +212,7 @@ class RunStore:
         try:
             staging.mkdir()
         except OSError as exc:
-            raise RunStoreError(f"{run}: cannot create the run directory: {exc}") from exc
+            raise _cannot_create(run, exc) from exc
         store = cls(staging, writable=True)
         try:
             store._take_lock()
@@ -214,7 +228,7 @@ class RunStore:
             except OSError as exc:
                 if exc.errno in (errno.EEXIST, errno.ENOTEMPTY):
                     raise RunStoreError(f"{run}: another process created a run here meanwhile") from None
-                raise RunStoreError(f"{run}: cannot create the run directory: {exc}") from exc
+                raise _cannot_create(run, exc) from exc
             _fsync_dir(parent)
         except BaseException:
             store.close()
@@ -312,7 +326,9 @@ class RunStore:
                 os.fsync(fd)
             finally:
                 os.close(fd)
-            msg = f"{where}: dropped a torn last line ({torn} bytes) left by an interrupted write"
+            line = len(records) + 1  # every line before the torn one holds one record
+            msg = (f"{where}: line {line} was half-written ({torn} bytes, not a whole record) and was dropped: the "
+                   "process before died in the middle of writing it; that point is measured again")  # fmt: skip
             warnings.warn(msg, RunStoreWarning, stacklevel=3)
         self._records, self._journal_size = records, good
 

@@ -311,6 +311,14 @@ class SimulatedCamera:
             if not self.keep_dng:
                 path.unlink(missing_ok=True)
 
+    def restart_streams(self) -> None:
+        """Draw the next frame's noise as the first of its state's stream, whatever the last frame's state was.
+
+        A state's stream otherwise runs on while frames of that state follow each other; a rig whose camera
+        outlives its controller (the rehearsal) restarts it where a new reading begins.
+        """
+        self._state = None
+
     def close(self) -> None:
         """Release the camera; later captures raise."""
         self.closed = True

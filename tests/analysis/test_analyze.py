@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import re
 import shutil
+import struct
 import subprocess
 import sys
 from html import escape
@@ -17,7 +18,7 @@ import pytest
 from analysis.analyze import analyze, load_and_fit
 from analysis.ladder import parse_models
 from analysis.report_plots import angles_of, coverage, slices
-from analysis.result import Analysis
+from analysis.result import Analysis, AnalysisError
 from gonio import cli
 from model import CookTorrance
 from model.base import Model
@@ -29,6 +30,7 @@ from model.serialize import from_json_dict
 from rig.run.session import start_run
 from tests.run_helpers import GOLD, in_plane_sweep, sim_rig
 
+ROOT = Path(__file__).resolve().parents[2]
 PNG = b"\x89PNG\r\n\x1a\n"
 FIGURES = ("slices", "polar", "residuals", "coverage", "uncertainty")
 # A simulated run's report also compares the fit with the true material.
@@ -319,15 +321,21 @@ def short_file(d: Path) -> Path:
     return d / "short.binary"
 
 
+def merl_header(d: Path) -> Path:
+    (d / "short.binary").write_bytes(np.array([90, 90, 180], dtype="<i4").tobytes() + b"\0" * 100)
+    return d / "short.binary"
+
+
 @pytest.mark.parametrize(
     ("make", "extra", "expected", "names_source"),
     [
         (lambda d: d / "missing", [], "no such file or directory", True),
         (lambda d: d, [], "not a run directory", True),
-        (short_file, [], "header dimensions (0, 0, 0), expected (90, 90, 180) (SOURCE: expected a MERL", True),
+        (short_file, [], "named .binary, but not a MERL table: its header is (0, 0, 0), a MERL table's is (90, 90, "
+         "180)); SOURCE: expected a run directory", True),
         (short_file, ["--models", "lambert,phong"], "unknown model 'phong'", False),
         (short_file, ["--loss", "l3"], "--loss 'l3': expected one of l2, cosine_l2, log, cbrt", False),
-        (short_file, ["--errors", "point"], "is a MERL file, which has no readings", True),
+        (merl_header, ["--errors", "point"], "is a MERL file, which has no readings", True),
     ],
     ids=["missing", "not-a-run", "bad-merl", "unknown-model", "bad-loss", "point-errors-of-merl"],
 )
@@ -427,3 +435,49 @@ def test_an_existing_analysis_is_replaced_only_with_force(gold_run: Path, tmp_pa
     assert wrote and all(line.startswith(f"wrote {out}/") for line in wrote)  # where the files end up, not the stage
     assert fit_doc(out)["chosen"] == "ggx_conductor" and not (out / "notes.txt").exists()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # nothing staged is left behind
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize(("content", "what"), [("", "is empty (no header, no rows)"),
+                                               ("theta_i_deg,phi_i_deg\n", "has a header but no rows")])  # fmt: skip
+def test_an_empty_samples_table_beside_a_full_journal_is_blamed_not_the_journal(
+    gold_run: Path, tmp_path: Path, capsys, content: str, what: str
+) -> None:
+    run = tmp_path / "run"
+    shutil.copytree(gold_run, run, ignore=shutil.ignore_patterns("analysis", "lock"))
+    (run / "samples.csv").write_text(content)
+    for source in (run / "samples.csv", run):
+        assert cli.main(["analyze", str(source), "--quiet", "--out", str(tmp_path / "report")]) == 2
+        err = capsys.readouterr().err
+        assert f"{run / 'samples.csv'}: {what}" in err, err
+        assert "holds none" not in err
+    assert not (tmp_path / "report").exists()
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "looks"),
+    [("rig.toml", (ROOT / "examples" / "rig_simulated.toml").read_bytes(), "it looks like a TOML rig or sweep file"),
+     ("paint.binary", b"\x00" * 64, "named .binary, but not a MERL table: its header is (0, 0, 0)"),
+     ("notes.txt", b"hello", "")],
+)  # fmt: skip
+def test_a_source_that_is_no_run_table_or_merl_file_is_named_with_what_is_accepted(
+    tmp_path: Path, capsys, name: str, content: bytes, looks: str
+) -> None:
+    source = tmp_path / name
+    source.write_bytes(content)
+    assert cli.main(["analyze", str(source), "--quiet", "--out", str(tmp_path / "report")]) == 2
+    err = capsys.readouterr().err
+    assert f"{source}: not something gonio analyze reads" in err and looks in err
+    assert "SOURCE: expected a run directory" in err and "a samples table (.csv or .parquet)" in err
+    assert "a MERL .binary file (a 12-byte header 90 90 180" in err and "header dimensions" not in err
+    assert not (tmp_path / "report").exists()
+
+
+def test_a_merl_file_is_known_by_its_header_whatever_its_name(tmp_path: Path) -> None:
+    from analysis.sources import source_kind
+
+    source = tmp_path / "paint.dat"
+    source.write_bytes(struct.pack("<3i", 90, 90, 180) + b"\x00" * 16)
+    assert source_kind(source) == "merl"
+    with pytest.raises(AnalysisError, match=r"paint\.dat: .* bytes, expected .* for a full MERL table"):
+        load_and_fit(source)

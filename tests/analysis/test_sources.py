@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -87,3 +88,19 @@ def test_the_report_of_an_adaptive_sweep_heads_with_its_metadata(sweep: Path, tm
     assert json.loads((out / "fit.json").read_text())["source"]["metadata"] == METADATA
     with open(sweep / "samples.csv", newline="") as fh:
         assert len(list(csv.DictReader(fh))) == 14
+
+
+@pytest.mark.parametrize(("content", "what"), [("", "is empty (no header, no rows)"),
+                                               ("theta_i_deg,brdf_r\n", "has a header but no rows")])  # fmt: skip
+def test_an_empty_table_is_named_as_empty_alone_or_in_an_adaptive_sweep(
+    sweep: Path, tmp_path: Path, content: str, what: str
+) -> None:
+    alone = tmp_path / "mine.csv"
+    alone.write_text(content)
+    with pytest.raises(AnalysisError, match=rf"mine\.csv: {re.escape(what)}; expected a samples table"):
+        fit(alone)
+    copy = tmp_path / "adaptive"
+    shutil.copytree(sweep, copy)
+    (copy / "samples.csv").write_text(content)
+    with pytest.raises(AnalysisError, match=rf"samples\.csv: {re.escape(what)}.*round-\* still hold every point"):
+        fit(copy)

@@ -107,7 +107,7 @@ def test_adaptive_measures_its_budget_with_the_reference_snr_asked_for(tmp_path,
     # The photon noise is planned to 1/1200; the journal's error also counts a 16-pixel scatter.
     assert len(rel) >= 4 and np.median(rel) <= 1.1 / 1200
     assert cli.main([*args[:4], str(tmp_path / "bad"), "--reference-snr", "0"]) == 2
-    assert "reference_snr (0.0) must be > 0" in capsys.readouterr().err
+    assert "--reference-snr 0: expected a positive signal-to-noise ratio" in capsys.readouterr().err
 
 
 def test_adaptive_metadata_options_and_their_mistakes(capsys: pytest.CaptureFixture[str]) -> None:

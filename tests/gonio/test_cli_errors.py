@@ -69,6 +69,18 @@ def test_an_operating_system_error_is_its_own_exit_code_with_the_path_and_reason
     assert f"operating-system error: {blocker / 'models'}: Not a directory [ENOTDIR]" in err
 
 
+@pytest.mark.parametrize("under", ["a-file", "a-file/deeper"])
+def test_a_run_directory_the_system_refuses_is_an_operating_system_error(tmp_path, capsys, under):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a directory")
+    out = tmp_path / under / "run"
+    assert cli.main(["run", str(EXAMPLES / "sweep_grid.toml"), "--out", str(out), "--quiet"]) == 74
+    err = capsys.readouterr().err
+    assert "operating-system error: " in err and "cannot create the run directory" in err
+    assert "Not a directory [ENOTDIR]" in err and str(out.parent) in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]
+
+
 def test_an_unexpected_exception_is_a_bug_not_bad_input(monkeypatch, capsys):
     def broken(*_args, **_kw):
         raise ValueError("an internal value went wrong")  # a ValueError that is nobody's input
@@ -127,3 +139,20 @@ def test_output_into_a_closed_pipe_ends_quietly():
         os.close(write_end)
     assert done.returncode == 141
     assert done.stderr == ""  # no "Broken pipe", no traceback, no "Exception ignored"
+
+
+def test_a_torn_journal_line_on_resume_is_one_plain_line_not_a_python_warning(tmp_path, capsys):
+    from rig.run.store import RunStore
+
+    run = tmp_path / "run"
+    with RunStore.create(run, {"points": 1}) as store:
+        store.append({"kind": "point", "index": 0})
+    with open(run / "journal.jsonl", "ab") as fh:
+        fh.write(b'{"kind":"point","ind')  # what a SIGKILL in the middle of a write leaves
+    cli.main(["resume", str(run), "--quiet"])  # the made-up manifest fails later; the warning comes first
+    err = capsys.readouterr().err
+    line = next(x for x in err.splitlines() if "half-written" in x)
+    assert line == (f"gonio: warning: {run / 'journal.jsonl'}: line 2 was half-written (20 bytes, not a whole record) "
+                    "and was dropped: the process before died in the middle of writing it; that point is measured "
+                    "again")  # fmt: skip
+    assert "RunStoreWarning" not in err and "warnings.warn" not in err and ".py:" not in err

@@ -190,3 +190,18 @@ def test_scan_ping_and_check_say_when_the_latency_timer_is_too_high(tmp_path, ca
         assert "USB latency timer 1 ms" in out and "id   1: found, XM430-W350" in out
     assert cli.main(["servo", "check", "--port", str(tmp_path / "ttyUSB9")]) == 3
     assert "no such device" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("where", "what"),
+    [("/dev/null", "is a character device but not a terminal (termios refuses it"),
+     ("dir", "is a directory"), ("file", "is a regular file")],
+)  # fmt: skip
+def test_check_says_what_a_port_that_is_no_serial_port_is(tmp_path, capsys, where, what):
+    port = {"dir": tmp_path, "file": tmp_path / "ttyUSB0"}.get(where, Path(where))
+    if where == "file":
+        port.write_text("")
+    assert cli.main(["servo", "check", "--port", str(port)]) == 3
+    out = capsys.readouterr().out
+    assert f"{port}: {what}" in out and "expected a serial port" in out
+    assert "present" not in out

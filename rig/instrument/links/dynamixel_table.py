@@ -8,6 +8,7 @@ BULK_READ, one block per servo.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 ALERT_BIT = 0x80
@@ -62,12 +63,19 @@ class ControlTable:
         Profile Velocity unit in rev/min (0.229 on the X series).
     accel_unit_rpm2:
         Profile Acceleration unit in rev/min^2 (214.577 on the X series).
+    velocity_limit_units:
+        The largest Profile Velocity the servo takes (its Velocity Limit; the XM430-W350's 200, 45.8 rev/min,
+        its no-load speed); more is a Data Limit Error. None: not known here (the servo refuses what it cannot).
+    accel_limit_units:
+        The largest Profile Acceleration the register holds (32767 on the X series); more is a Data Range Error.
     """
 
     family: str
     ticks_per_turn: int
     velocity_unit_rpm: float
     accel_unit_rpm2: float
+    velocity_limit_units: int | None = None
+    accel_limit_units: int | None = None
     id: int = 7
     baud_rate: int = 8
     operating_mode: int = 11
@@ -102,6 +110,20 @@ class ControlTable:
         """Profile Acceleration register value for an acceleration in degrees/s^2 (at least 1)."""
         return max(1, round(deg_per_s2 * 10.0 / self.accel_unit_rpm2))
 
+    @property
+    def max_speed_deg_s(self) -> float:
+        """The fastest profile speed the servo takes, output-shaft degrees/s (the Velocity Limit's)."""
+        if self.velocity_limit_units is None:
+            return math.inf
+        return self.velocity_limit_units * self.velocity_unit_rpm * 6.0
+
+    @property
+    def max_accel_deg_s2(self) -> float:
+        """The largest profile acceleration the register holds, output-shaft degrees/s^2."""
+        if self.accel_limit_units is None:
+            return math.inf
+        return self.accel_limit_units * self.accel_unit_rpm2 / 10.0
+
 
 BAUD_RATE_VALUES = {9600: 0, 57600: 1, 115200: 2, 1_000_000: 3, 2_000_000: 4, 3_000_000: 5, 4_000_000: 6,
                     4_500_000: 7}  # fmt: skip
@@ -116,7 +138,9 @@ def baud_rate_value(baudrate: int) -> int:
     return BAUD_RATE_VALUES[baudrate]
 
 
-X_SERIES = ControlTable(family="X", ticks_per_turn=4096, velocity_unit_rpm=0.229, accel_unit_rpm2=214.577)
+X_SERIES = ControlTable(family="X", ticks_per_turn=4096, velocity_unit_rpm=0.229, accel_unit_rpm2=214.577,
+                        velocity_limit_units=200, accel_limit_units=32767)  # fmt: skip
+"""The X series' table, with the XM430-W350's Velocity Limit (firmware 42 and later: 200, no Acceleration Limit)."""
 
 # P series (PH54, PH42, PM54, PM42): RAM block at 512+, resolution per model (ROBOTIS e-Manual).
 _P_SERIES_RAM = dict(

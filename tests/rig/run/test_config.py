@@ -219,3 +219,123 @@ def test_metadata_tables_are_kept_merged_and_checked(tmp_path: Path) -> None:
         with pytest.raises(ConfigError) as err:
             load_sweep(bad)
         assert str(err.value).startswith(f"{tmp_path}/" + message), str(err.value)
+
+
+def _model_classes() -> list[type]:
+    import model
+    from model.base import Model
+
+    return [c for n in sorted(dir(model)) if isinstance(c := getattr(model, n), type) and issubclass(c, Model)
+            and c is not Model]  # fmt: skip
+
+
+@pytest.mark.parametrize("cls", _model_classes(), ids=lambda c: c.__name__)
+def test_a_misspelt_material_parameter_names_the_models_parameters_and_the_closest(tmp_path: Path, cls: type) -> None:
+    import inspect
+
+    names = list(inspect.signature(cls).parameters)
+    wanted = names[0]
+    typo = wanted + "x"  # rho_d -> rho_dx, alpha -> alphax
+    path = _write(tmp_path, f"[simulation.material]\nmodel = '{cls.__name__}'\n{typo} = 0.5\n")
+    with pytest.raises(ConfigError) as info:
+        load_rig(path)  # at load, before any run directory exists, not when the simulator builds the scene
+    text = str(info.value)
+    assert text.startswith(f"{path}: simulation.material.{typo} = 0.5: {cls.__name__} has no parameter {typo!r}")
+    assert f"its parameters are {', '.join(names)}" in text
+    assert f"did you mean {wanted!r}?" in text
+
+
+def test_lambert_with_rho_suggests_rho_d(tmp_path: Path) -> None:
+    path = _write(tmp_path, "[simulation.material]\nmodel = 'Lambert'\nrho = 0.5\n")
+    with pytest.raises(ConfigError, match=r"Lambert has no parameter 'rho'; its parameters are rho_d; did you mean "
+                       r"'rho_d'\?"):  # fmt: skip
+        load_rig(path)
+
+
+DYNAMIXEL_RIG = """[link]
+kind = "dynamixel"
+port = "/dev/ttyUSB0"
+[axes.light]
+id = 1
+{light}
+[axes.camera]
+id = 2
+[axes.tilt]
+id = 3
+gear_ratio = 3.0
+{tilt}
+[axes.roll]
+id = 4
+[reference]
+kind = "manual"
+"""
+
+
+@pytest.mark.parametrize(
+    ("light", "tilt", "message"),
+    [
+        ("max_speed_deg_s = 720.0", "", r"axes\.light\.max_speed_deg_s = 720: an XM430-W350 takes at most 274\.8 "
+         r"deg/s \(its Velocity Limit, 200 x 0\.229 rev/min\); expected at most 274\.8 deg/s for this joint"),
+        ("", "max_speed_deg_s = 100.0", r"axes\.tilt\.max_speed_deg_s = 100 \(x gear_ratio 3 = 300 at the servo\): "
+         r"an XM430-W350 takes at most 274\.8 deg/s .*; expected at most 91\.6 deg/s for this joint"),
+        ("max_accel_deg_s2 = 1e6", "", r"axes\.light\.max_accel_deg_s2 = 1e\+06: an XM430-W350 takes at most 703104 "
+         r"deg/s\^2 .*32767"),
+    ],
+)  # fmt: skip
+def test_a_dynamixel_axis_faster_than_the_servo_is_refused_naming_key_value_and_limit(
+    tmp_path: Path, light: str, tilt: str, message: str
+) -> None:
+    path = _write(tmp_path, DYNAMIXEL_RIG.format(light=light, tilt=tilt))
+    with pytest.raises(ConfigError, match=message):
+        load_rig(path)
+
+
+def test_the_servo_limits_the_rig_file_allows_are_the_virtual_xm430s() -> None:
+    """At the limit the (virtual) servo takes the profile; just beyond it answers Data Limit Error."""
+    import dataclasses
+
+    from rig.instrument.clock import ManualClock
+    from rig.instrument.links.base import LinkError
+    from rig.instrument.links.dynamixel import DynamixelLink
+    from rig.instrument.links.dynamixel_table import X_SERIES
+    from simulator.dynamixel import open_virtual_bus
+
+    fastest = X_SERIES.max_speed_deg_s / 3.0
+    at_limit = DYNAMIXEL_RIG.format(light="", tilt=f"max_speed_deg_s = {fastest!r}")
+    rig = rig_config(parse(tomllib.loads(at_limit), RigFile, "rig.toml"), "rig.toml")
+    beyond = tuple(dataclasses.replace(a, max_speed_deg_s=fastest * 1.01) if a.name == "tilt" else a
+                   for a in rig.axes)  # fmt: skip
+    with pytest.raises(ConfigError, match="max_speed_deg_s"):
+        rig_config(parse(tomllib.loads(DYNAMIXEL_RIG.format(light="", tilt=f"max_speed_deg_s = {fastest * 1.01!r}")),
+                         RigFile, "rig.toml"), "rig.toml")  # fmt: skip
+    clock = ManualClock()
+    with open_virtual_bus(ids=(1, 2, 3, 4), baudrate=1_000_000, clock=clock) as bus:
+        DynamixelLink.open(bus.port, rig.axes, clock=clock, latency_timer_ms=60.0).shutdown()
+        with pytest.raises(LinkError, match="Data Limit"):
+            DynamixelLink.open(bus.port, beyond, clock=clock, latency_timer_ms=60.0).shutdown()
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("[link]\nbaudrate = 1e30\n", r"link\.baudrate = 1e\+30: expected a valid integer \(> 0 and <= 20000000\)"),
+        ("[link]\nbaudrate = 100000000\n", r"link\.baudrate = 100000000: expected a value less than or equal to 2"),
+        ("[simulation]\nseed = 18446744073709551617\n",
+         r"simulation\.seed = 18446744073709551617: expected a value less than or equal to 4294967295"),
+        ("[simulation]\nseed = 1.5\n", r"simulation\.seed = 1\.5: expected a valid integer \(>= 0 and <= 4294967295\)"),
+        ("[camera.noise]\ne_per_dn = 1e-300\n",
+         r"camera\.noise\.e_per_dn = 1e-300: expected a value greater than or equal to 0\.001"),
+        ("[camera.noise]\nfull_well_e = 1e300\n", r"camera\.noise\.full_well_e = 1e\+300: expected a value less than"),
+        ("[geometry]\nlight_radius_m = 1e300\n", r"geometry\.light_radius_m = 1e\+300: expected a value less than"),
+        ("[camera]\nmax_exposure_s = 1e300\n", r"camera\.max_exposure_s = 1e\+300: expected a value less than"),
+        ("[reference]\nevery = 10000000000\n", r"reference\.every = 10000000000: expected a value less than"),
+        ("[simulation]\nlight_intensity_w_sr = 1e300\n", r"simulation\.light_intensity_w_sr = 1e\+300: expected"),
+        ("[simulation]\ntime_scale = 1e300\n", r"simulation\.time_scale = 1e\+300: expected a value less than"),
+        ("[axes.light]\nid = 1\ntolerance_deg = 1e300\n", r"axes\.light\.tolerance_deg = 1e\+300: expected a"),
+    ],
+)  # fmt: skip
+def test_extreme_numbers_are_refused_naming_key_value_and_range(tmp_path: Path, text: str, message: str) -> None:
+    path = _write(tmp_path, text)
+    with pytest.raises(ConfigError, match=message) as info:
+        load_rig(path)
+    assert str(info.value).startswith(str(path))

@@ -1,0 +1,29 @@
+"""What ``gonio sim`` says about bad input: an --axes it cannot serve, a ``capture`` line it cannot read."""
+
+from __future__ import annotations
+
+import pytest
+
+from gonio import cli
+from gonio.cli_sim import capture_seconds
+
+
+@pytest.mark.parametrize("axes", ["XQ", "YZ", "", "XYZABCX", "xyz"])
+def test_sim_grbl_refuses_axes_it_cannot_serve_as_bad_input(axes: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["sim", "grbl", "--axes", axes])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert f"--axes {axes!r}: expected the first 1 to 6 of GRBL's axis letters XYZABC in that order" in err
+
+
+@pytest.mark.parametrize("text", ["abc", "0", "-1", "-0.5", "nan", "inf", "-inf", "1e999", ""])
+def test_capture_line_with_a_bad_exposure_says_what_is_expected(text: str) -> None:
+    with pytest.raises(ValueError) as err:
+        capture_seconds(text)
+    assert str(err.value) == f"'capture {text}': expected 'capture SECONDS' with SECONDS a positive number"
+
+
+@pytest.mark.parametrize(("text", "seconds"), [("0.01", 0.01), ("2", 2.0), ("1e-4", 1e-4)])
+def test_capture_line_with_a_positive_exposure_is_read(text: str, seconds: float) -> None:
+    assert capture_seconds(text) == seconds
