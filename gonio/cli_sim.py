@@ -141,10 +141,10 @@ def _rig(args: argparse.Namespace) -> int:
     roi = cfg.file.camera.roi if hardware else r.controller_roi(cfg, spec.camera.resolution)
     with r.rehearsal_rig(cfg, link, spec) as sim:
         tether = r.Tether(sim, frames, roi)
-        _announce(sim.port)
-        if args.write_rig:
+        if args.write_rig:  # before the port is announced: a client reading that line may read the file next
             text = r.controller_rig_text(cfg, sim, link, frames, r.controller_roi(cfg, spec.camera.resolution))
             Path(args.write_rig).write_text(text)
+        _announce(sim.port)
         ids = ",".join(str(a.address) for a in sim.axes)
         what = (f"GRBL 1.1h axes {ids}" if link == "grbl" else f"servos {ids}") + \
             f" ({', '.join(a.name for a in sim.axes)})"
