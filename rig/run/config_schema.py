@@ -325,7 +325,9 @@ class Misalignment(Strict):
     at the edge of the lit spot; ``stray_light`` adds ambient counts per second to every pixel; the lamp
     warms up by the fraction ``lamp_drift`` with time constant ``lamp_warmup_s`` of rig time; each Dynamixel
     joint comes to rest anywhere within ``joint_settle_ticks`` encoder counts around what its encoder reads
-    (1: a real servo, whose position loop cannot tell places within one count apart).
+    (1: a real servo, whose position loop cannot tell places within one count apart); every joint's gears have
+    ``backlash_deg`` of play the encoder cannot see (the load lags the motor by half of it behind the direction
+    it was last driven in), on either link.
     See ``rig.instrument.alignment`` for the exact definitions.
     """
 
@@ -343,6 +345,7 @@ class Misalignment(Strict):
     lamp_drift: Annotated[float, Field(gt=-0.9, lt=10, allow_inf_nan=False)] = 0.0
     lamp_warmup_s: Pos = 600.0
     joint_settle_ticks: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] = 0.0
+    backlash_deg: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] = 0.0
 
 
 class SimulatedSensor(Strict):
