@@ -111,6 +111,11 @@ class Link(Strict):
     settle_s: Annotated[float, Field(ge=0, le=600)] = 0.0
     on_stop: Literal["torque_off", "hold"] = "torque_off"
     allow_reboot: bool = False
+    #: Known play of every joint's gears (deg of joint), unless its [axes.<joint>] table says otherwise.
+    backlash_deg: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] = 0.0
+    #: Anti-backlash approach (deg of joint): every pose is reached by overshooting this far and coming back
+    #: from one side, so the load rests against the same flank; 0 moves straight there.
+    backlash_approach_deg: Annotated[float, Field(ge=0, le=20, allow_inf_nan=False)] = 0.0
 
     @field_validator("kind")
     @classmethod
@@ -142,6 +147,8 @@ class AxisTable(Strict):
     max_speed_deg_s: Annotated[float, Field(gt=0, le=1e5, allow_inf_nan=False)] = 60.0
     max_accel_deg_s2: Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)] = 120.0
     tolerance_deg: Pos = 0.2
+    #: Known play between this joint's motor and its load (deg of joint); [link] backlash_deg if left out.
+    backlash_deg: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] | None = None
 
     @model_validator(mode="after")
     def _one_address(self) -> AxisTable:

@@ -146,7 +146,8 @@ def options_for(rig: RigConfig, sweep: SweepConfig, progress: bool) -> RunOption
     link, cap = rig.file.link, sweep.file.capture
     return RunOptions(move_timeout_s=link.move_timeout_s, settle_s=link.settle_s, on_stop=link.on_stop,
                       save_images=cap.save_images, include_cosine=cap.include_cosine, progress=progress,
-                      capture_timeout_s=rig.file.camera.capture_timeout_s)  # fmt: skip
+                      capture_timeout_s=rig.file.camera.capture_timeout_s,
+                      backlash_approach_deg=link.backlash_approach_deg)  # fmt: skip
 
 
 def _run(store: RunStore, rig: RigConfig, sweep: SweepConfig, plan: Plan, progress: bool) -> RunSummary:

@@ -8,12 +8,16 @@ from one side, so the load rests on a known flank (``rig.run.backlash``).
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
+from rig.run.session import start_run
+from rig.run.store import RunStore
 from simulator.from_config import rig_from
-from tests.run_helpers import GOLD, LINKS, open_link, sim_rig
+from tests.run_helpers import GOLD, LINKS, in_plane_sweep, open_link, read_rows, sim_rig, truth_and_measured
 
 pytestmark = pytest.mark.mitsuba
 
@@ -26,12 +30,13 @@ def link(request: pytest.FixtureRequest) -> str:
     return str(request.param)
 
 
-def _rig(on: str) -> Any:
-    return sim_rig(GOLD, on=on, simulation={"misalignment": {"backlash_deg": PLAY_DEG}})
+def _rig(on: str, approach_deg: float, material: dict[str, Any] | None = None) -> Any:
+    return sim_rig(material or GOLD, on=on, simulation={"misalignment": {"backlash_deg": PLAY_DEG}},
+                   link={"backlash_deg": PLAY_DEG, "backlash_approach_deg": approach_deg})  # fmt: skip
 
 
 def test_the_simulated_load_lags_its_motor_by_half_the_play(link: str) -> None:
-    rig = _rig(link)
+    rig = _rig(link, 0.0)
     with rig_from(rig) as sim:
         light = next(a for a in sim.axes if a.name == "light")
         motion = open_link(sim, rig)
@@ -46,3 +51,65 @@ def test_the_simulated_load_lags_its_motor_by_half_the_play(link: str) -> None:
                 assert load - read == pytest.approx(sign * PLAY_DEG / 2, abs=0.02), (start, load, read)
         finally:
             motion.shutdown()
+
+
+def _z(tmp_path: Path, on: str, approach_deg: float) -> tuple[np.ndarray, list[dict[str, Any]]]:
+    """z-scores (points, channels) of a gold sweep's readings against the truth, and its point records."""
+    rig = _rig(on, approach_deg)
+    # Both arms swept up and down through the gold's lobe: each point's joints arrive from either side.
+    sweep = in_plane_sweep([40.0, 20.0], [-60.0, -40.0, -25.0, 10.0, 30.0])
+    summary = start_run(rig, sweep, tmp_path / f"run-{approach_deg:g}", progress=False)
+    truth, got, se = truth_and_measured(read_rows(summary.table), rig)
+    points = [r for r in RunStore.read(tmp_path / f"run-{approach_deg:g}").records() if r["kind"] == "point"]
+    return (got - truth) / se, points
+
+
+def test_a_one_sided_approach_takes_the_play_out_of_the_readings(tmp_path: Path, link: str) -> None:
+    z, points = _z(tmp_path, link, approach_deg=2.0 * PLAY_DEG)
+    assert np.all(np.abs(z) < 4.5), z
+    events = [r for r in RunStore.read(tmp_path / "run-4").records() if r["kind"] == "event"]
+    assert not events, events  # every overshoot leg passed the motion guard's separation check
+    # The load's side is known: nothing of the play is left in the angles' variance (the encoder's count only).
+    assert max(r["angle_cov_deg2"][0][0] for r in points) < PLAY_DEG**2 / 12 / 10
+
+
+def test_without_the_approach_the_play_moves_the_readings_beyond_their_errors(tmp_path: Path, link: str) -> None:
+    z, points = _z(tmp_path, link, approach_deg=0.0)
+    assert np.max(np.abs(z)) > 6.0, z  # the fault is real: the joints read exact, the loads are half the play off
+    # ... and the journal says the angles are that uncertain: a band of width b, variance b^2 / 12 per joint.
+    assert min(r["angle_cov_deg2"][0][0] for r in points) >= PLAY_DEG**2 / 12 * 0.99
+
+
+def test_the_approach_overshoots_within_the_limits_and_knows_which_flank_it_left_the_load_on() -> None:
+    from rig.instrument.axis import Axis
+    from rig.run.backlash import Backlash
+
+    axes = [Axis("light", 1, 4096 / 360, min_deg=-90.0, max_deg=90.0, backlash_deg=1.0),
+            Axis("camera", 2, 4096 / 360, min_deg=-90.0, max_deg=90.0, backlash_deg=0.5)]  # fmt: skip
+    play = Backlash(axes, approach_deg=3.0)
+    target = {"light": 40.0, "camera": -89.0, "tilt": 5.0}
+    below = play.pre_pose(target, 1)
+    assert below == {"light": 37.0, "camera": -90.0, "tilt": 5.0}  # clamped at the limit; no axis: stays
+    sides = play.sides(below, target)
+    assert sides == {"light": 1, "camera": 1}  # camera came up 1 deg: more than its 0.5 deg of play
+    assert play.load_angles({"light": 40.0, "camera": -89.0}, sides) == {"light": 39.5, "camera": -89.25}
+    assert play.variance_deg2("light", sides) == 0.0
+    # From above the camera has room; a joint whose final leg is shorter than its play keeps a band of it.
+    short = Backlash(axes, approach_deg=0.8)
+    sides = short.sides(short.pre_pose(target, -1), target)
+    assert sides == {"camera": -1}
+    assert short.variance_deg2("light", sides) == pytest.approx(1.0 / 12)
+    with pytest.raises(ValueError, match="backlash_approach_deg = -1"):
+        Backlash(axes, -1.0)
+
+
+def test_a_rig_file_states_each_joints_play_and_the_approach() -> None:
+    from rig.run.config import ConfigError
+    from rig.run.session import options_for
+
+    rig = sim_rig(link={"backlash_deg": 0.5, "backlash_approach_deg": 1.5},
+                  axes={"light": {"id": 1, "backlash_deg": 1.2}})  # fmt: skip
+    assert {a.name: a.backlash_deg for a in rig.axes} == {"light": 1.2, "camera": 0.5, "tilt": 0.5, "roll": 0.5}
+    assert options_for(rig, in_plane_sweep([30.0], [0.0]), False).backlash_approach_deg == 1.5
+    with pytest.raises(ConfigError, match=r"link\.backlash_approach_deg = -1"):
+        sim_rig(link={"backlash_approach_deg": -1})
