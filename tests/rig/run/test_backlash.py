@@ -113,3 +113,35 @@ def test_a_rig_file_states_each_joints_play_and_the_approach() -> None:
     assert options_for(rig, in_plane_sweep([30.0], [0.0]), False).backlash_approach_deg == 1.5
     with pytest.raises(ConfigError, match=r"link\.backlash_approach_deg = -1"):
         sim_rig(link={"backlash_approach_deg": -1})
+
+
+def test_an_overshoot_the_guard_refuses_is_tried_from_the_other_side_then_skipped_with_an_event() -> None:
+    from types import SimpleNamespace
+
+    from rig.instrument.axis import Axis
+    from rig.run.backlash import Backlash
+    from rig.run.motion_guard import UnsafeMove
+    from rig.run.runner import Runner
+
+    play = Backlash([Axis("light", 1, 4096 / 360, backlash_deg=1.0)], approach_deg=2.0)
+    target = {"light": 30.0}
+
+    def approach(refused: set[float]) -> tuple[Any, list[float], list[str]]:
+        moves: list[float] = []
+        events: list[str] = []
+
+        def legs(pose: dict[str, float]) -> dict[str, float]:
+            if pose["light"] in refused:  # the guard refuses before anything moves
+                raise UnsafeMove(f"refused a move to {pose}")
+            moves.append(pose["light"])
+            return dict(pose)
+
+        runner = SimpleNamespace(backlash=play, _legs=legs, _sides={},
+                                 _event=lambda kind, message, **_: events.append(kind))  # fmt: skip
+        Runner._approach(runner, target)  # type: ignore[arg-type]
+        return runner, moves, events
+
+    runner, moves, events = approach({28.0})  # no room below: from above
+    assert moves == [32.0, 30.0] and runner._sides == {"light": -1} and not events
+    runner, moves, events = approach({28.0, 32.0})  # no room on either side: straight there, play uncertain
+    assert moves == [30.0] and runner._sides == {} and events == ["approach_skipped"]
