@@ -222,6 +222,8 @@ class DynamixelBus:
 
     ``latency_timer_ms`` is the USB adapter's latency timer (16 ms by default on FTDI chips, 1 ms once
     tuned); the reply timeout is twice that plus the packet's transmit time plus 2 ms, as in the SDK.
+    ``clock`` is the link's (real time when None): the retries' patience is counted on it, and on a simulated
+    clock a reply the virtual device dropped costs its window there instead of on the wall.
     """
 
     def __init__(
@@ -339,7 +341,7 @@ class DynamixelBus:
                             self._learn_from_reply()
                         return value, error
                     attempt += 1
-                    silent[self._failed_id] = worst = silent.get(self._failed_id, 0) + 1
+                    silent[self._failed_id] = silent.get(self._failed_id, 0) + 1
                     # A late or corrupt reply may still be arriving; drop it so the retry starts clean.
                     late = self._drain() > 0 and result == sdk.COMM_RX_TIMEOUT
                     if patient and replies:
@@ -360,10 +362,9 @@ class DynamixelBus:
                         # This transaction only, and by how often the same servo was silent: a slow or dead servo
                         # gets ever longer windows, losses spread over a group's servos hardly any.
                         scale = min(max(self.window_scale, kept * 2.0**worst), MAX_TIMEOUT_SCALE)
-            except BaseException:
-                if not patient:
-                    self._port.timeout_scale = self.window_scale
-                raise
+            finally:
+                # What the SDK is called with next (a broadcast ping too) is the kept window, not a retry's.
+                self._port.timeout_scale = self.window_scale
         raise AssertionError("unreachable")
 
     def _silences_allowed(self) -> int:
