@@ -145,3 +145,16 @@ def test_an_overshoot_the_guard_refuses_is_tried_from_the_other_side_then_skippe
     assert moves == [32.0, 30.0] and runner._sides == {"light": -1} and not events
     runner, moves, events = approach({28.0, 32.0})  # no room on either side: straight there, play uncertain
     assert moves == [30.0] and runner._sides == {} and events == ["approach_skipped"]
+
+
+def test_the_plan_counts_the_approach_in_its_time_estimate() -> None:
+    from rig.run.plan_order import trapezoid_time_s
+    from rig.run.session import make_plan
+
+    sweep = in_plane_sweep([30.0], [-30.0, 0.0, 30.0])
+    straight, approached = make_plan(_rig("dynamixel", 0.0), sweep), make_plan(_rig("dynamixel", 3.0), sweep)
+    n = len(approached.points)
+    # Out past each pose and back: two 3 deg trapezoids of the default axes (60 deg/s, 120 deg/s^2) a point.
+    per_point = 2.0 * float(trapezoid_time_s(3.0, 60.0, 120.0))
+    assert approached.estimate.overhead_s == pytest.approx(straight.estimate.overhead_s + n * per_point)
+    assert approached.estimate.total_s > straight.estimate.total_s
