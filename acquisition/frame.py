@@ -72,6 +72,8 @@ class Frame:
             raise FrameError(f"{where}: gain = {self.gain!r}, expected a positive number")
         if self.data.ndim not in (2, 3):
             raise FrameError(f"{where}: data has shape {self.data.shape}, expected (H, W) or (H, W, C)")
+        if self.data.size == 0:
+            raise FrameError(f"{where}: data has shape {self.data.shape}: the frame holds no pixels")
         if self.kind == "raw" and self.data.ndim != 2:
             raise FrameError(f"{where}: a raw mosaic must be 2-D, got shape {self.data.shape}")
         if self.cfa_pattern is not None and (len(self.cfa_pattern) != 4 or set(self.cfa_pattern) - set("RGB")):

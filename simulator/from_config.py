@@ -58,6 +58,7 @@ def spec_from(rig: RigConfig, *, camera: CameraSpec | None = None) -> SimRigSpec
         lamp_drift=mis.lamp_drift,
         lamp_warmup_s=mis.lamp_warmup_s,
         settle_ticks=mis.joint_settle_ticks,
+        backlash_deg=mis.backlash_deg,
         camera_output=sim.camera_output,
         response=response,
     )

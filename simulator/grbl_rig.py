@@ -86,8 +86,15 @@ class SimulatedGrblRig(SimulatedRig):
         self.grbl.start()
 
     def physical_units(self, axis: Axis) -> float:
-        """Where ``axis``'s joint physically stands now, in steps (what a camera sees, whatever GRBL reports)."""
-        coordinate = self.controller.physical_position[str(axis.address)]
+        """Where ``axis``'s joint physically stands now, in steps (what a camera sees, whatever GRBL reports).
+
+        Gear play (``backlash_deg``) leaves the load half of it behind the motor's last direction of motion.
+        """
+        letter = str(axis.address)
+        coordinate = self.controller.physical_position[letter]
+        if self.spec.backlash_deg:
+            lag = 0.5 * self.spec.backlash_deg * axis.gear_ratio  # motor degrees: GRBL's unit
+            coordinate -= self.controller.driven_direction[letter] * lag
         return coordinate * axis.units_per_degree
 
     @property

@@ -92,6 +92,9 @@ class SimRigSpec:
     settle_ticks:
         Each servo's load rests anywhere within this many encoder counts around its reading
         (``simulator.dynamixel.faults.ServoMechanics.settle_ticks``; 1: a real servo).
+    backlash_deg:
+        Play in every joint's gears, degrees of joint: the encoder (or GRBL's step count) does not see it, and the
+        load lags the motor by half of it behind the direction the joint was last driven in.
     camera_output:
         "linear" (demosaiced counts), "raw" (a CFA mosaic) or "dng" (a mosaic written as a DNG file and read
         back through rawpy, the path a real camera's RAW files take); see ``simulator.camera.simulated``.
@@ -119,6 +122,7 @@ class SimRigSpec:
     lamp_drift: float = 0.0
     lamp_warmup_s: float = 600.0
     settle_ticks: float = 0.0
+    backlash_deg: float = 0.0
     camera_output: Literal["linear", "raw", "dng"] = "linear"
     response: PixelResponse = field(default_factory=PixelResponse)
     dng_dir: Path | None = None
@@ -192,8 +196,10 @@ class SimulatedRig:
         at = self.start_pose()
         positions = {int(a.address): round(a.to_units(at[a.name])) for a in self.axes}
         bus = VirtualDynamixelBus(ids, self.spec.baudrate, self.clock, seed=self.spec.seed, positions=positions)
-        for i in ids:
-            bus.servo(i).mechanics.settle_ticks = self.spec.settle_ticks
+        for a in self.axes:
+            mechanics = bus.servo(int(a.address)).mechanics
+            mechanics.settle_ticks = self.spec.settle_ticks
+            mechanics.backlash_ticks = self.spec.backlash_deg * a.units_per_joint_degree
         bus.start()
         self.bus = bus
 

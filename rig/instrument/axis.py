@@ -35,6 +35,9 @@ class Axis:
         Joint speed and acceleration limits (degrees/s, degrees/s^2) the link programs into the device.
     tolerance_deg:
         In-position tolerance on the joint angle in degrees.
+    backlash_deg:
+        Known play between the motor (what the encoder or the step count sees) and the load, in degrees of
+        joint; 0 when none is known.
     """
 
     name: str
@@ -48,6 +51,7 @@ class Axis:
     max_speed_deg_s: float = 60.0
     max_accel_deg_s2: float = 120.0
     tolerance_deg: float = 0.2
+    backlash_deg: float = 0.0
 
     def __post_init__(self) -> None:
         where = f"axis {self.name!r}"
@@ -63,6 +67,8 @@ class Axis:
             raise ValueError(
                 f"{where}: limits [{self.min_deg!r}, {self.max_deg!r}] deg, expected finite min_deg < max_deg"
             )
+        if not (math.isfinite(self.backlash_deg) and self.backlash_deg >= 0):
+            raise ValueError(f"{where}: backlash_deg = {self.backlash_deg!r}, expected a finite number >= 0")
         if not math.isfinite(self.zero_offset_deg):
             raise ValueError(f"{where}: zero_offset_deg = {self.zero_offset_deg!r}, expected a finite number")
         if isinstance(self.address, int) and not 0 <= self.address <= 252:

@@ -74,6 +74,13 @@ class ManualClock:
         with self._lock:
             return self._t
 
+    def settle(self) -> None:
+        """Return once every settling device has handled all a client wrote (time does not move)."""
+        with self._lock:
+            settlers = list(self._settlers)
+        for settle in settlers:
+            settle()
+
     def sleep(self, seconds: float) -> None:
         """Advance simulated time by ``seconds`` without blocking."""
         self.advance(seconds)
@@ -82,10 +89,7 @@ class ManualClock:
         """Move simulated time forward by ``seconds`` (negative values are refused)."""
         if seconds < 0:
             raise ValueError(f"ManualClock.advance({seconds!r}): time cannot run backwards")
-        with self._lock:
-            settlers = list(self._settlers)
-        for settle in settlers:
-            settle()
+        self.settle()
         with self._lock:
             self._t += seconds
 

@@ -9,6 +9,7 @@ objects follow the schema's tables one by one; the schema itself is config_schem
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import difflib
 import inspect
@@ -385,6 +386,9 @@ def _axes(path: Path, cfg: RigFile, geometry: RigGeometry) -> tuple[Axis, ...]:
             ))  # fmt: skip
         except ValueError as exc:
             raise ConfigError(f"{path}: axes.{name}: {exc}") from None
+    # Each joint's known play: its own table's, else the link's default for all.
+    plays = {n: t.backlash_deg for n, t in cfg.axes.items() if t.backlash_deg is not None}
+    out = [dataclasses.replace(a, backlash_deg=plays.get(a.name, cfg.link.backlash_deg)) for a in out]
     ids = [a.address for a in out]
     if len(set(ids)) != len(ids):
         dup = next(i for i in ids if ids.count(i) > 1)

@@ -119,6 +119,11 @@ class Link(Strict):
     settle_s: Annotated[float, Field(ge=0, le=600)] = 0.0
     on_stop: Literal["torque_off", "hold"] = "torque_off"
     allow_reboot: bool = False
+    #: Known play of every joint's gears (deg of joint), unless its [axes.<joint>] table says otherwise.
+    backlash_deg: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] = 0.0
+    #: Anti-backlash approach (deg of joint): every pose is reached by overshooting this far and coming back
+    #: from one side, so the load rests against the same flank; 0 moves straight there.
+    backlash_approach_deg: Annotated[float, Field(ge=0, le=20, allow_inf_nan=False)] = 0.0
 
     @field_validator("kind")
     @classmethod
@@ -152,6 +157,8 @@ class AxisTable(Strict):
     max_speed_deg_s: Annotated[float, Field(gt=0, le=1e5, allow_inf_nan=False)] = 60.0
     max_accel_deg_s2: Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)] = 120.0
     tolerance_deg: Annotated[float, Field(gt=0, le=90, allow_inf_nan=False)] = 0.2
+    #: Known play between this joint's motor and its load (deg of joint); [link] backlash_deg if left out.
+    backlash_deg: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] | None = None
 
     @model_validator(mode="after")
     def _one_address(self) -> AxisTable:
@@ -348,7 +355,9 @@ class Misalignment(Strict):
     at the edge of the lit spot; ``stray_light`` adds ambient counts per second to every pixel; the lamp
     warms up by the fraction ``lamp_drift`` with time constant ``lamp_warmup_s`` of rig time; each Dynamixel
     joint comes to rest anywhere within ``joint_settle_ticks`` encoder counts around what its encoder reads
-    (1: a real servo, whose position loop cannot tell places within one count apart).
+    (1: a real servo, whose position loop cannot tell places within one count apart); every joint's gears have
+    ``backlash_deg`` of play the encoder cannot see (the load lags the motor by half of it behind the direction
+    it was last driven in), on either link.
     See ``rig.instrument.alignment`` for the exact definitions.
     """
 
@@ -366,6 +375,7 @@ class Misalignment(Strict):
     lamp_drift: Annotated[float, Field(gt=-0.9, lt=10, allow_inf_nan=False)] = 0.0
     lamp_warmup_s: Pos = 600.0
     joint_settle_ticks: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] = 0.0
+    backlash_deg: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] = 0.0
 
 
 class SimulatedSensor(Strict):

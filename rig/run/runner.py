@@ -19,7 +19,7 @@ Progress: the merge is loaded as a step before the first point (its compiled pas
 an ROI crop, at the first such merge, after a notice where they compile), and the bar's ETA
 (``rig.run.progress``) leaves the first point's one-time costs out. The file stays whole past 400
 lines: the loop, its fault handling and its records are one sequence; what stands alone (camera deadlines,
-motion guard, progress, warm-up) lives beside it.
+motion guard, gear play and its approach, progress, warm-up) lives beside it.
 """
 
 from __future__ import annotations
@@ -49,10 +49,11 @@ from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints
 from rig.instrument.kinematics_types import Directions
 from rig.instrument.links.base import HomingLink, LinkError, MotionLink, MoveTimeout
+from rig.run.backlash import SIDES, Backlash
 from rig.run.bounded_camera import BoundedCamera
 from rig.run.journal import check_records
 from rig.run.measure import CaptureSettings, Level, Reading, take_reading
-from rig.run.motion_guard import MotionGuard
+from rig.run.motion_guard import MotionGuard, UnsafeMove
 from rig.run.plan import Plan, PlannedPoint
 from rig.run.progress import Eta, format_eta
 from rig.run.reference import ReferenceTarget
@@ -104,6 +105,8 @@ class RunOptions:
     progress: bool = True
     #: Wall seconds a camera call may take beyond twice its exposure before it is a camera fault.
     capture_timeout_s: float = 60.0
+    #: Anti-backlash approach (deg of joint): overshoot every pose by this much and come back from one side.
+    backlash_approach_deg: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -171,6 +174,11 @@ class Runner:
         allowed = [p.joints for p in plan.points] + [v for p in plan.points for v in p.via]
         if reference is not None:
             allowed.append(reference.joints)
+        #: The joints' gear play and the one-sided approach that takes it up (``rig.run.backlash``).
+        self.backlash = Backlash(axes, self.options.backlash_approach_deg)
+        if self.backlash.active:  # the guard checks the overshoot legs like any other move
+            allowed += self.backlash.pre_poses(allowed)
+        self._sides: dict[str, int] = {}  # per joint, the flank its load rests on after the last move
         self.guard = MotionGuard(plan.paths, allowed)
         #: Time to go, in wall seconds (the progress bar's), without the first point's one-time costs.
         self.eta = Eta(wall_clock)
@@ -306,18 +314,45 @@ class Runner:
 
     # -- motion ---------------------------------------------------------------------------------------
     def _move(self, joints: Joints, via: tuple[Joints, ...] = ()) -> Joints:
-        held: dict[str, float] = {}
+        """Move through ``via`` to ``joints``; the joints the loads hold (deg), gear play taken out where known."""
         driven = self.guard_names
-        for stop in (*via, joints):
-            target = {k: float(v) for k, v in stop.as_dict().items() if k in driven}
-            # Every leg is checked from where the arms are now (the guard), never assumed from the plan.
-            for leg in self.guard.legs(self.link, target):
-                held = self._leg(leg)
+        for stop in via:
+            self._legs({k: float(v) for k, v in stop.as_dict().items() if k in driven})
+        target = {k: float(v) for k, v in joints.as_dict().items() if k in driven}
+        if self.backlash.active:
+            held = self._approach(target)
+        else:
+            held, self._sides = self._legs(target), {}
         if self.options.settle_s > 0:
             self.clock.sleep(self.options.settle_s)
+        held = self.backlash.load_angles(held, self._sides)
         names = Joints.__dataclass_fields__
         return Joints.from_dict({**{k: float(v) for k, v in joints.as_dict().items()},
                                  **{k: v for k, v in held.items() if k in names}})  # fmt: skip
+
+    def _legs(self, target: dict[str, float]) -> dict[str, float]:
+        """Move to ``target`` (deg) in the legs the guard makes safe; the joints read back after the last."""
+        held: dict[str, float] = {}
+        # Every leg is checked from where the arms are now (the guard), never assumed from the plan.
+        for leg in self.guard.legs(self.link, target):
+            held = self._leg(leg)
+        return held
+
+    def _approach(self, target: dict[str, float]) -> dict[str, float]:
+        """Reach ``target`` from one side through its overshoot pose (from below, else above); joints read back."""
+        for side in SIDES:
+            pre = self.backlash.pre_pose(target, side)
+            try:
+                self._legs(pre)
+            except UnsafeMove:
+                continue  # the arms would come too close on this side: try the other
+            held = self._legs(target)
+            self._sides = self.backlash.sides(pre, target)
+            return held
+        self._event("approach_skipped", f"no overshoot pose of {target} keeps the arms apart: moved straight "
+                    "there; its joints' play stays in their uncertainty")  # fmt: skip
+        self._sides = {}
+        return self._legs(target)
 
     @property
     def guard_names(self) -> frozenset[str]:
@@ -358,7 +393,7 @@ class Runner:
         t1 = self.now()
         fault: LinkError | None = None
         try:  # where the axes stood at the end: how far they moved during the frames
-            after: Mapping[str, float] = self.link.read_positions()
+            after: Mapping[str, float] = self.backlash.load_angles(self.link.read_positions(), self._sides)
         except LinkError as exc:  # the reading is taken: keep it, then stop on the fault
             after, fault = {k: float(v) for k, v in actual.as_dict().items()}, exc
         image = None
@@ -384,7 +419,8 @@ class Runner:
         variance = {}
         for name, value in before.as_dict().items():
             moved = float(after.get(name, value)) - float(value)
-            variance[name] = self._resolution.get(name, 0.0) ** 2 / 12.0 + moved * moved / 12.0
+            variance[name] = (self._resolution.get(name, 0.0) ** 2 / 12.0 + moved * moved / 12.0
+                              + self.backlash.variance_deg2(name, self._sides))  # fmt: skip
         cal = self.calibration
         angles, tangent = direction_covariances(
             self.geometry, before, self.alignment, variance, cal.names if cal else (),

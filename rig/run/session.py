@@ -133,12 +133,23 @@ def make_plan(rig: RigConfig, sweep: SweepConfig, *, progress: bool = False) -> 
     with _plan_bar(len(sweep.directions_deg), progress) as stage:
         return plan_sweep(
             sweep.directions_deg, rig.geometry, rig.axes, settle_s=rig.file.link.settle_s,
-            exposure_s_per_point=per_point, reference_every=ref.every if ref else 0,
-            reference_s=per_point if ref else 0.0, reference_joints=ref.joints if ref else None,
-            order=sweep.file.sweep.order, isotropic=sweep.file.sweep.isotropic,
+            exposure_s_per_point=per_point, overhead_s_per_point=_approach_s(rig),
+            reference_every=ref.every if ref else 0, reference_s=per_point if ref else 0.0,
+            reference_joints=ref.joints if ref else None, order=sweep.file.sweep.order,
+            isotropic=sweep.file.sweep.isotropic,
             coordinated=backend(rig.file.link.kind).for_file(rig.file).coordinated, alignment=rig.alignment,
             on_stage=stage,
         )  # fmt: skip
+
+
+def _approach_s(rig: RigConfig) -> float:
+    """Time (s) a pose's anti-backlash approach adds: out past it and back, the slowest axis's two trapezoids."""
+    from rig.run.plan_order import trapezoid_time_s
+
+    a = rig.file.link.backlash_approach_deg
+    if not a or not rig.axes:
+        return 0.0
+    return max(2.0 * float(trapezoid_time_s(a, ax.max_speed_deg_s, ax.max_accel_deg_s2)) for ax in rig.axes)
 
 
 def instruments(rig: RigConfig, start: StartPose | None = None) -> contextlib.AbstractContextManager[Instruments]:
@@ -180,7 +191,8 @@ def options_for(rig: RigConfig, sweep: SweepConfig, progress: bool) -> RunOption
     link, cap = rig.file.link, sweep.file.capture
     return RunOptions(move_timeout_s=link.move_timeout_s, settle_s=link.settle_s, on_stop=link.on_stop,
                       save_images=cap.save_images, include_cosine=cap.include_cosine, progress=progress,
-                      capture_timeout_s=rig.file.camera.capture_timeout_s)  # fmt: skip
+                      capture_timeout_s=rig.file.camera.capture_timeout_s,
+                      backlash_approach_deg=link.backlash_approach_deg)  # fmt: skip
 
 
 def check_rig(rig: RigConfig) -> None:

@@ -105,6 +105,12 @@ class VirtualGrbl(GrblCore):
             return {a: round((p + o) * n) / n for a, p, o, n in where}
 
     @property
+    def driven_direction(self) -> dict[str, int]:
+        """Per axis letter, the sign of its last motion in machine coordinates (0 before any): where play lags."""
+        with self._lock:
+            return dict(zip(self.axes, self._driven, strict=True))
+
+    @property
     def planner_blocks(self) -> int:
         """Blocks queued in the planner (including the one executing)."""
         with self._lock:
@@ -304,6 +310,8 @@ class VirtualGrbl(GrblCore):
             self._reset_system()
             return
         self._offset = [0.0] * len(self.axes)
+        # Homing ends pulling off its switch: away from machine 0 (negative), or positive with $23's bit set.
+        self._driven = [1 if int(self.settings[23]) >> i & 1 else -1 for i in range(len(self.axes))]
         self._state = IDLE
         self._sync_parser()
         self._emit("ok")

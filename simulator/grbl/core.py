@@ -68,6 +68,8 @@ class GrblCore:
         self._modal = Modal()
         self._gc_pos = [0.0] * n
         self._planned = [0.0] * n
+        # Per axis, the sign of its last motion (0: none yet), for gear play that lags behind it.
+        self._driven = [0] * n
         # Homing in progress: (start time, end time, reported start, reported position at the end, fault).
         self._homing: tuple[float, float, list[float], list[float], int | None] | None = None
         self._homing_end: list[float] = [0.0] * n
@@ -345,6 +347,7 @@ class GrblCore:
         accel = min(s.accel(i) * length / d for i, d in enumerate(deltas) if d > 0)
         speed = rate if rapid else min(rate, feed / 60.0)
         self._motion.add(Move(start, quantised, speed, accel, jog=jog), self._t)
+        self._driven = [(b > a) - (b < a) or d for a, b, d in zip(start, quantised, self._driven, strict=True)]
         self._planned = list(quantised)
         if self._state == IDLE:
             self._state = JOG if jog else CYCLE

@@ -24,3 +24,10 @@ def test_a_frame_refuses_what_it_refused(field: str, bad: float) -> None:
     kwargs = {"exposure_s": 0.1, "gain": 1.0, field: bad}
     with pytest.raises(FrameError, match=f"frame from unknown: {field} = {bad!r}, expected a positive number"):
         Frame(data, "raw", **kwargs)
+
+
+@pytest.mark.parametrize("shape", [(0, 16), (16, 0), (0, 0), (4, 0, 3)])
+def test_a_frame_without_pixels_is_refused_naming_it(shape: tuple[int, ...]) -> None:
+    # Once a numpy message from deep in the merge ("zero-size array to reduction operation maximum").
+    with pytest.raises(FrameError, match=rf"frame from cam 7: data has shape \({shape[0]}, .*no pixels"):
+        Frame(np.zeros(shape, np.uint16), "linear", 0.01, camera_id="cam 7")

@@ -272,6 +272,24 @@ def test_missing_or_wrong_darks() -> None:
         merge_linear([*frames, "frame.dng"], NOISE)  # type: ignore[list-item]
 
 
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+@pytest.mark.parametrize("form", ["frame", "averaged"])
+def test_a_dark_with_non_finite_counts_is_refused_naming_it(bad: float, form: str) -> None:
+    # Once accepted silently: a quarter of a run's dark frame NaN moved its reading 40 % up, with no flag.
+    frames = small_bracket()
+    darks: dict[float, object] = {}
+    for t in (0.001, 0.004, 0.016):
+        d = dark_frame(frames[0].shape, NOISE, t, 0)
+        spoiled = np.array(d.data, dtype=np.float32)
+        if t == 0.004:
+            spoiled[0, :3] = bad
+        d = dataclasses.replace(d, data=spoiled)
+        darks[t] = d if form == "frame" else [d, d]
+    size = frames[0].data.size
+    with pytest.raises(FrameError, match=rf"dark 0 for 0.004 s .* has 3 non-finite pixel values of {size}"):
+        merge_linear(frames, NOISE, darks=darks)  # type: ignore[arg-type]
+
+
 def test_bad_parameters() -> None:
     frames = small_bracket()
     with pytest.raises(ValueError, match="weighting"):

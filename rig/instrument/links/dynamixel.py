@@ -129,7 +129,8 @@ class DynamixelLink:
         options: DynamixelOptions | None = None,
     ) -> DynamixelLink:
         """Open ``port`` at ``baudrate`` and configure every axis's servo."""
-        bus = DynamixelBus(port, baudrate, retries=retries, latency_timer_ms=latency_timer_ms)
+        # The bus shares the link's clock: on simulated time a reply the virtual bus dropped costs no wall time.
+        bus = DynamixelBus(port, baudrate, retries=retries, latency_timer_ms=latency_timer_ms, clock=clock)
         try:
             return cls(bus, axes, clock=clock, options=options)
         except BaseException:

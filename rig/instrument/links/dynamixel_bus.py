@@ -11,9 +11,17 @@ transaction would answer "Port is in use!", the stop and the torque-off included
 object the port's only user, a set flag on entry can only be such a leftover: it is cleared, and the reply
 that may still be arriving for the abandoned request is drained, before the next transaction is sent.
 
-Slow hosts. The SDK's reply timeout (transmit time + 2 x latency timer + 2 ms) is right for a quiet host, but
-a loaded one can deliver a reply later. A lost reply is therefore retried with the timeout doubled each time,
-for at least ``reply_patience_s`` of wall time, so a slow host waits longer instead of reporting a dead servo.
+Slow hosts and lossy buses. The SDK's reply timeout (transmit time + 2 x latency timer + 2 ms) is right for a
+quiet host, but a loaded one can deliver a reply later. A reply that does not come is retried with the window
+doubled each time (up to ``MAX_TIMEOUT_SCALE``), for at least ``reply_patience_s`` of the clock's time, so a slow host
+waits longer instead of reporting a dead servo. The window kept for later transactions grows only on a *late*
+reply (one that came after it: seen by the retry that caught it, or by the drain), never on a missing one,
+and relaxes geometrically with every reply on time: a bus that loses replies keeps its short window, so each
+loss costs one window and a retry rather than an ever longer wait. Losses are counted on their own; a bus that
+loses more than ``LOSS_LIMIT`` of its replies over the last ``LOSS_WINDOW`` attempts is a ``LossyBusError``
+naming the rate. On a simulated clock (one with ``settle``, ``rig.instrument.clock.ManualClock``) a reply the
+virtual device did not send is known to be lost once the device has settled: the wait is charged to the clock,
+not to the wall.
 A port that fails at the OS level (EIO: cable or adapter pulled) is a ``LinkError``, never a bare OSError.
 
 One file past 400 lines on purpose: the SDK's port handler, its lock, the interrupt recovery and the
@@ -22,10 +30,12 @@ blocking reads are one ownership of the port; splitting them would spread the bu
 
 from __future__ import annotations
 
+import math
 import select
 import termios
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TypeVar
@@ -33,6 +43,7 @@ from typing import TypeVar
 import dynamixel_sdk as sdk
 import serial
 
+from rig.instrument.clock import Clock
 from rig.instrument.links.base import LinkError
 from rig.instrument.links.dynamixel_table import ALERT_BIT, ControlTable, describe_status_error, table_for_model
 
@@ -50,6 +61,10 @@ T = TypeVar("T")
 
 class CommunicationError(LinkError):
     """No valid status packet after all retries (wrong baud or id, wiring, or a servo that is gone)."""
+
+
+class LossyBusError(CommunicationError):
+    """The bus loses too large a share of its replies to be measured on (names the rate and the window)."""
 
 
 class ServoStatusError(LinkError):
@@ -110,35 +125,86 @@ class _PortHandler(sdk.PortHandler):
     once per chunk of the reply and its timeout logic is unchanged.
     """
 
-    def __init__(self, port_name: str, latency_timer_ms: float) -> None:
+    def __init__(self, port_name: str, latency_timer_ms: float, clock: Clock | None = None) -> None:
         super().__init__(port_name)
         self.latency_timer_ms = latency_timer_ms
-        self.timeout_scale = 1.0  # raised by the bus while it retries a lost reply
+        self.timeout_scale = 1.0  # the window's multiple of the SDK's, set by the bus per attempt
+        self.base_timeout_ms = 0.0  # the packet in flight's window before scaling (ms)
+        self.reply_ms = 0.0  # ms after the request when the latest reply bytes arrived (0: none yet)
+        self._clock = clock
+        self._settle: Callable[[], None] | None = getattr(clock, "settle", None)
+        self._lost = False  # the device settled without replying: the window is over
+
+    def _start(self, base_ms: float) -> None:
+        self.packet_start_time = self.getCurrentTime()
+        self.base_timeout_ms = base_ms
+        self.packet_timeout = base_ms * self.timeout_scale
+        self.reply_ms = 0.0
+        self._lost = False
 
     def setPacketTimeout(self, packet_length: int) -> None:
-        self.packet_start_time = self.getCurrentTime()
-        base = self.tx_time_per_byte * packet_length + self.latency_timer_ms * 2.0 + 2.0
-        self.packet_timeout = base * self.timeout_scale
+        self._start(self.tx_time_per_byte * packet_length + self.latency_timer_ms * 2.0 + 2.0)
 
     def setPacketTimeoutMillis(self, msec: float) -> None:
-        self.packet_start_time = self.getCurrentTime()
-        self.packet_timeout = msec * self.timeout_scale
+        self._start(msec)
+
+    def settle_device(self) -> bool:
+        """On a simulated clock, wait until the virtual device has answered all it will; False on real time."""
+        if self._settle is None:
+            return False
+        self._settle()
+        return True
+
+    def isPacketTimeout(self) -> bool:
+        if self._lost:
+            self.packet_timeout = 0
+            return True
+        return bool(super().isPacketTimeout())
 
     def readPort(self, length: int) -> bytes:
         """Up to ``length`` bytes, waiting for the first for at most the rest of the packet timeout."""
-        if length <= 0:
+        if length <= 0 or self._lost:
             return b""  # the SDK asks for 0 bytes when a header it just parsed completes the packet
+        fd = self.ser.fileno()
+        if self._settle is not None and not _readable(fd, 0.0):
+            # A virtual device on a simulated clock: once it has handled the request, a reply that is not on
+            # the line was dropped and never comes. The window passes on the clock, not on the wall.
+            self._settle()
+            if not _readable(fd, 0.0):
+                assert self._clock is not None
+                self._clock.sleep(max(0.0, self.packet_timeout - self.getTimeSinceStart()) / 1000.0)
+                self._lost = True
+                return b""
         left_ms = self.packet_timeout - self.getTimeSinceStart()
-        if left_ms > 0:
-            select.select([self.ser.fileno()], [], [], left_ms / 1000.0)
-        return bytes(self.ser.read(length))
+        if left_ms <= 0:
+            return b""  # what arrives after the window is a late reply: the SDK times out, the drain sees it
+        _readable(fd, left_ms / 1000.0)
+        data = bytes(self.ser.read(length))
+        if data:
+            self.reply_ms = self.getTimeSinceStart()
+        return data
+
+
+def _readable(fd: int, wait_s: float) -> bool:
+    """Whether ``fd`` has bytes to read within ``wait_s`` seconds."""
+    return bool(select.select([fd], [], [], wait_s)[0])
 
 
 # What a port that fails at the OS level raises: termios.error (tcflush, tcsetattr) is not an OSError.
 _PORT_FAILURES = (serial.SerialException, OSError, termios.error)
-_MAX_TIMEOUT_SCALE = 64.0
-#: Transactions answered in time before a widened reply window is halved again.
-_RELAX_AFTER = 200
+MAX_TIMEOUT_SCALE = 16.0
+"""Widest reply window, as a multiple of the SDK's (about 2 s at a 60 ms latency timer, 0.6 s at 16 ms)."""
+#: Factor on the kept window per reply on time: a window widened for a slow spell narrows again within tens.
+_RELAX = 0.9
+#: Room a widened window keeps above the slowest recent reply (a multiple of that reply's latency).
+_HEADROOM = 1.5
+#: How rarely losses by chance may end a transaction on a lossy bus, and the most silences a servo is allowed.
+_CHANCE = 1e-6
+_MAX_SILENCES = 12
+LOSS_WINDOW = 50
+"""Attempts over which the share of lost or garbled replies is judged."""
+LOSS_LIMIT = 0.5
+"""Share of lost replies over ``LOSS_WINDOW`` attempts beyond which the bus is a hardware fault."""
 
 
 def _open_hint(exc: BaseException) -> str:
@@ -156,6 +222,8 @@ class DynamixelBus:
 
     ``latency_timer_ms`` is the USB adapter's latency timer (16 ms by default on FTDI chips, 1 ms once
     tuned); the reply timeout is twice that plus the packet's transmit time plus 2 ms, as in the SDK.
+    ``clock`` is the link's (real time when None): the retries' patience is counted on it, and on a simulated
+    clock a reply the virtual device dropped costs its window there instead of on the wall.
     """
 
     def __init__(
@@ -166,6 +234,7 @@ class DynamixelBus:
         retries: int = 3,
         latency_timer_ms: float = 16.0,
         reply_patience_s: float = 2.0,
+        clock: Clock | None = None,
     ) -> None:
         check_baudrate(baudrate)
         if retries < 0:
@@ -178,9 +247,14 @@ class DynamixelBus:
         self.retries = retries
         self.reply_patience_s = reply_patience_s
         self._abandoned = False  # a transaction was left mid-way (a signal): drain before the next one
-        self._on_time = 0
+        self.window_scale = 1.0
+        """The reply window kept between transactions, a multiple of the SDK's (grown by late replies only)."""
+        self._losses: deque[bool] = deque(maxlen=LOSS_WINDOW)  # per attempt that expected a reply: was it lost
+        self._failed_id = -1  # the servo whose reply a failed group read missed (-1: a unicast's one servo)
+        self.replies_lost = 0
         self._lock = threading.RLock()
-        self._port = _PortHandler(port, latency_timer_ms)
+        self._port = _PortHandler(port, latency_timer_ms, clock)
+        self._now: Callable[[], float] = clock.now if clock is not None else time.monotonic
         self._ph = sdk.PacketHandler(2.0)
         self._port.baudrate = baudrate
         try:
@@ -225,22 +299,32 @@ class DynamixelBus:
 
     # -- transactions -------------------------------------------------------------------------------
 
-    def _transact(self, what: str, call: Callable[[], tuple[T, int, int]], *, patient: bool = True) -> tuple[T, int]:
+    def _transact(
+        self, what: str, call: Callable[[], tuple[T, int, int]], *, patient: bool = True, replies: bool = True
+    ) -> tuple[T, int]:
         """Run one SDK transaction returning (value, comm result, error byte), retrying lost replies.
 
-        ``patient``: a lost reply is retried, with a doubling timeout, for at least ``reply_patience_s``
-        (a servo known to be there, on a host that may be slow); scans pass False to give up quickly.
+        ``patient``: a reply that does not come is retried, with a doubling window, for at least
+        ``reply_patience_s`` (a servo known to be there, on a host that may be slow); scans pass False to give
+        up quickly, and their silent ids count neither as losses nor as late replies. ``replies``: False for a
+        packet no servo answers (SYNC_WRITE), which says nothing about the bus's replies.
         """
         with self._lock:
             if not self._port.is_open:
                 raise LinkError(f"{self.port_name}: {what}: the port is closed")
             if self._abandoned or self._port.is_using:
                 self._drain()
-            started = time.monotonic()
+            started = self._now()  # the link's clock: on simulated time the lost windows are charged there
             attempt = 0
-            scale = self._port.timeout_scale
+            scale = kept = self.window_scale
+            # Failed attempts per servo that failed them (-1: the one servo of a unicast): a servo silent again and
+            # again is gone or slow, while a lossy bus spreads its losses over the servos of a group read.
+            silent: dict[int, int] = {}
+            allowed = self._silences_allowed()
             try:
                 while True:
+                    self._port.timeout_scale = scale
+                    self._failed_id = -1
                     try:
                         value, result, error = call()
                     except _PORT_FAILURES as exc:
@@ -252,39 +336,95 @@ class DynamixelBus:
                         self._abandoned = True  # interrupted inside the SDK: is_using set, a reply maybe in flight
                         raise
                     if result == sdk.COMM_SUCCESS:
-                        self._on_time += 1
-                        if self._on_time >= _RELAX_AFTER and self._port.timeout_scale > 1.0:
-                            self._port.timeout_scale /= 2.0  # the host has caught up: tighten again, slowly
-                            self._on_time = 0
+                        if replies and patient:
+                            self._losses.append(False)
+                            self._learn_from_reply()
                         return value, error
                     attempt += 1
-                    waited = time.monotonic() - started
-                    slow = patient and result == sdk.COMM_RX_TIMEOUT and waited < self.reply_patience_s
-                    if result not in _RETRYABLE or (attempt > self.retries and not slow):
+                    silent[self._failed_id] = silent.get(self._failed_id, 0) + 1
+                    # A late or corrupt reply may still be arriving; drop it so the retry starts clean.
+                    late = self._drain() > 0 and result == sdk.COMM_RX_TIMEOUT
+                    if patient and replies:
+                        self._count_failure(what, late)
+                    worst = max(silent.values())
+                    waited = self._now() - started
+                    # Past the retries, only a window that can still widen is worth waiting on (a slow host).
+                    slow = (patient and result == sdk.COMM_RX_TIMEOUT and waited < self.reply_patience_s
+                            and scale < MAX_TIMEOUT_SCALE)  # fmt: skip
+                    if result not in _RETRYABLE or (worst > allowed and not slow):
                         raise CommunicationError(
                             f"{self.port_name} at {self.baudrate} baud: {what}: {self._ph.getTxRxResult(result)} "
-                            f"(after {attempt} attempt{'s' if attempt > 1 else ''} in {waited:.2f} s; check baud "
-                            "rate, id and wiring)"
+                            f"(after {attempt} attempt{'s' if attempt > 1 else ''} in {waited:.2f} s; "
+                            f"{self._loss_text()}; check baud rate, id and wiring)"
                         )
                     self.comm_retries_used += 1
                     if result == sdk.COMM_RX_TIMEOUT:
-                        # The longer window is kept for the next transactions: a slow host stays slow a while.
-                        self._port.timeout_scale = min(self._port.timeout_scale * 2.0, _MAX_TIMEOUT_SCALE)
-                        self._on_time = 0
-                    # A late or corrupt reply may still be arriving; drop it so the retry starts clean.
-                    self._drain()
-            except BaseException:
-                if not patient:
-                    self._port.timeout_scale = scale  # a scan's silent ids say nothing about the host's speed
-                raise
+                        # This transaction only, and by how often the same servo was silent: a slow or dead servo
+                        # gets ever longer windows, losses spread over a group's servos hardly any.
+                        scale = min(max(self.window_scale, kept * 2.0**worst), MAX_TIMEOUT_SCALE)
+            finally:
+                # What the SDK is called with next (a broadcast ping too) is the kept window, not a retry's.
+                self._port.timeout_scale = self.window_scale
         raise AssertionError("unreachable")
 
-    def _drain(self) -> None:
-        """Forget an abandoned transaction: clear the SDK's busy flag and discard replies until the line is quiet."""
+    def _silences_allowed(self) -> int:
+        """Failed attempts one servo may have before it counts as gone: ``retries``, more on a bus known to lose.
+
+        On a bus that lost the share r of its recent replies, n losses in a row happen by chance r^n of the time:
+        enough attempts that chance explains a give-up less than once in a million, at most ``_MAX_SILENCES``.
+        """
+        r = self.loss_rate
+        if not 0.0 < r < 1.0:
+            return self.retries
+        return max(self.retries, min(_MAX_SILENCES, math.ceil(math.log(_CHANCE) / math.log(r)) - 1))
+
+    def _learn_from_reply(self) -> None:
+        """Widen the kept window after a reply later than it, else narrow it geometrically towards the SDK's."""
+        base = self._port.base_timeout_ms
+        ratio = self._port.reply_ms / base if base > 0 else 0.0
+        if ratio > self.window_scale:  # it came only because this transaction's retry waited longer
+            self.window_scale = min(MAX_TIMEOUT_SCALE, max(2.0 * self.window_scale, _HEADROOM * ratio))
+        else:
+            relaxed = max(_RELAX * self.window_scale, _HEADROOM * ratio, 1.0)
+            self.window_scale = min(self.window_scale, relaxed)
+
+    def _count_failure(self, what: str, late: bool) -> None:
+        """Count one failed attempt: a late reply widens the kept window, a lost one counts towards the loss rate."""
+        if late:
+            self.window_scale = min(MAX_TIMEOUT_SCALE, 2.0 * self.window_scale)
+            self._losses.append(False)
+            return
+        self._losses.append(True)
+        self.replies_lost += 1
+        if len(self._losses) == LOSS_WINDOW and self.loss_rate > LOSS_LIMIT:
+            raise LossyBusError(
+                f"{self.port_name} at {self.baudrate} baud: {what}: {self._loss_text()}, more than {LOSS_LIMIT:.0%}: "
+                "the bus is too lossy to measure on; check the cable, its termination and the baud rate"
+            )
+
+    @property
+    def loss_rate(self) -> float:
+        """Share of the last ``LOSS_WINDOW`` attempts whose reply was lost or garbled (0 before any)."""
+        return sum(self._losses) / len(self._losses) if self._losses else 0.0
+
+    def _loss_text(self) -> str:
+        return f"{self.loss_rate:.0%} of the last {len(self._losses)} replies lost or garbled"
+
+    def _drain(self) -> int:
+        """Forget an abandoned transaction: clear the SDK's busy flag and discard replies until the line is quiet.
+
+        Returns the number of bytes discarded (a reply that came after its window, or noise).
+        """
         self._port.is_using = False
         self._abandoned = False
         quiet_s = (2.0 * self._port.latency_timer_ms + 2.0) / 1000.0
+        discarded = 0
         try:
+            if self._port.settle_device():  # a virtual device on simulated time: all it sends is on the line now
+                discarded = self._port.getBytesAvailable()
+                self._port.clearPort()
+                return discarded
+            discarded = self._port.getBytesAvailable()
             self._port.clearPort()
             # A line that never goes quiet is noise: stop after a while, the retry's CRC check handles it.
             limit = time.monotonic() + 20 * quiet_s
@@ -292,8 +432,8 @@ class DynamixelBus:
             while True:
                 left = min(quiet_s, limit - time.monotonic())
                 if left <= 0 or not select.select([fd], [], [], left)[0]:
-                    return  # quiet for quiet_s (or noisy for too long)
-                self._port.ser.read(max(self._port.getBytesAvailable(), 1))
+                    return discarded  # quiet for quiet_s (or noisy for too long)
+                discarded += len(self._port.ser.read(max(self._port.getBytesAvailable(), 1)))
         except _PORT_FAILURES as exc:
             self._abandoned = True
             where = self.port_name
@@ -385,7 +525,7 @@ class DynamixelBus:
             raw = (value & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
             group.addParam(sid, list(raw))
         what = f"sync write of address {address} to servos {sorted(values)}"
-        self._transact(what, lambda: (None, group.txPacket(), 0))
+        self._transact(what, lambda: (None, group.txPacket(), 0), replies=False)
 
     def _group_read(self, what: str, group: object, sizes: Mapping[int, int]) -> dict[int, Reading]:
         """Send a sync or bulk read ``group`` and collect each servo's status packet with its error byte."""
@@ -399,6 +539,7 @@ class DynamixelBus:
             for sid, size in sizes.items():
                 data, result, error = self._ph.readRx(self._port, sid, size)
                 if result != sdk.COMM_SUCCESS:
+                    self._failed_id = sid  # whose reply was missing: the retries judge each servo on its own
                     return out, result, 0
                 out[sid] = Reading(bytes(data), int(error))
             return out, sdk.COMM_SUCCESS, 0
