@@ -1,20 +1,25 @@
 """The least-squares fit of a rig's imperfections to the board's corners and the lamp's highlights.
 
 Residuals are pixel differences between observed and predicted positions (``rig.alignment.model``), each
-divided by its standard error: the highlight's from its peak fit (at least ``HIGHLIGHT_FLOOR_PX``), the
-corners' from their own scatter about the fit (estimated in a first pass, then fixed, with corners beyond
-5 of it dropped as misdetections). The parameters' covariance is the inverse normal matrix, scaled up by
-chi2/dof where the residuals exceed their errors (the model then explains less than the noise predicts:
-the uncertainty must say so), widened where a jackknife over captures scatters more (errors a frame's
-corners share), plus the systematic term of a bias common to every highlight (the peak model's accuracy,
-``HIGHLIGHT_SYSTEMATIC_PX``). Pairs of parameters correlated beyond ``MAX_CORRELATION`` are named: the
-captures cannot tell them apart.
+divided by its standard error: the highlight's from its peak fit (at least ``HIGHLIGHT_FLOOR_PX``) and, added
+in quadrature, the highlights' own scatter about the fit beyond it; the corners' from their own scatter about
+the fit (both estimated in a first pass, then fixed, with corners beyond 5 of it dropped as misdetections).
+The highlights scatter beyond their peak fits where the joints stand off what they read: a servo rests
+anywhere within one encoder count (0.09 deg), and the mirror image moves with the lamp's and the stage's
+angles by 1-2 px per such count, while the corners, about the board's centre, barely move. A scatter beyond
+``HIGHLIGHT_SCATTER_LIMIT`` times what the peak fits and the joints' counts explain is warned of.
+
+The parameters' covariance is the inverse normal matrix, scaled up by chi2/dof where the residuals exceed
+their errors (the model then explains less than the noise predicts: the uncertainty must say so), widened
+where a jackknife over captures scatters more (errors a frame's corners share), plus the systematic term of
+a bias common to every highlight (the peak model's accuracy, ``HIGHLIGHT_SYSTEMATIC_PX``). Pairs of
+parameters correlated beyond ``MAX_CORRELATION`` are named: the captures cannot tell them apart.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,7 +27,7 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from rig.alignment.model import coat_peak, predict
-from rig.alignment.observe import FrameObservation
+from rig.alignment.observe import FrameObservation, Highlight
 from rig.instrument.alignment import PARAMETERS, Alignment, alignment_of, parameters_of
 from rig.instrument.calibration_file import RESIDUAL_LIMIT
 from rig.instrument.geometry import RigGeometry
@@ -36,6 +41,9 @@ HIGHLIGHT_FLOOR_PX = 0.02
 #: in their scatter, so it enters the covariance as a systematic term (see _systematic).
 HIGHLIGHT_SYSTEMATIC_PX = 0.02
 MAX_CORRELATION = 0.95
+#: Highlights scattering about the fit by more than this many times what their peak fits and their joints'
+#: encoder counts explain are warned of.
+HIGHLIGHT_SCATTER_LIMIT = 2.0
 #: User-facing names of the fit parameters (the wedge is reported as tilt and azimuth, see quantities()).
 LABELS = {"wedge_x_deg": "sample_tilt_deg (x)", "wedge_y_deg": "sample_tilt_deg (y)",
           "offset_x_mm": "sample_offset_mm x", "offset_y_mm": "sample_offset_mm y",
@@ -68,6 +76,8 @@ class GeometryFit:
     corner_residuals_px: list[FloatArray]
     highlight_residuals_px: list[FloatArray | None]
     warnings: tuple[str, ...] = field(default=())
+    #: The highlights' scatter about the fit beyond their peak fits' errors (px), added to each in quadrature.
+    highlight_sigma_px: float = 0.0
 
     @property
     def reduced_chi2(self) -> float:
@@ -131,6 +141,12 @@ class _Problem:
     keep: list[npt.NDArray[np.bool_]]
     #: Per capture, the coat's peak minus the mirror point (px), from the last estimate (see coat_peak).
     shifts: list[FloatArray]
+    #: The highlights' scatter beyond their peak fits (px): see the module's docstring.
+    highlight_sigma: float = 0.0
+
+    def highlight_error(self, highlight: Highlight) -> float:
+        """A highlight's standard error (px): its peak fit's (at least the floor) and the highlights' scatter."""
+        return math.hypot(max(highlight.std_error_px, HIGHLIGHT_FLOOR_PX), self.highlight_sigma)
 
     def rows(self) -> list[slice]:
         """Which residuals belong to which capture (kept corners x 2, then the highlight's 2)."""
@@ -159,10 +175,48 @@ class _Problem:
             if seen.highlight is not None:
                 h = highlight + shift - np.array([seen.highlight.x, seen.highlight.y])
                 hl_res.append(h)
-                parts.append(h / max(seen.highlight.std_error_px, HIGHLIGHT_FLOOR_PX))
+                parts.append(h / self.highlight_error(seen.highlight))
             else:
                 hl_res.append(None)
         return np.concatenate(parts) if parts else np.zeros(0), corner_res, hl_res
+
+
+def _highlight_scatter(captures: Sequence[Capture], residuals: list[FloatArray | None], n_parameters: int) -> float:
+    """The highlights' scatter about a fit beyond their peak fits' errors (px; 0 where those explain it).
+
+    Each highlight gives two residuals; the fit's parameters take up to a fraction ``n_parameters / n`` of their
+    spread (the highlights fix the light's zero and share the rest with the corners), so their mean square is
+    scaled up by that much before the peak fits' own share is taken off.
+    """
+    ms, own, n = 0.0, 0.0, 0
+    for h, cap in zip(residuals, captures, strict=True):
+        if h is not None and cap.seen.highlight is not None:
+            ms += float(h @ h)
+            own += 2 * max(cap.seen.highlight.std_error_px, HIGHLIGHT_FLOOR_PX) ** 2
+            n += 2
+    if n <= n_parameters:
+        return 0.0
+    return math.sqrt(max(ms / (n - min(n_parameters, n // 2)) - own / n, 0.0))
+
+
+def _joint_jitter(geometry: RigGeometry, captures: Sequence[Capture], a: Alignment, focal_px: float,
+                  size: tuple[int, int], joint_std_deg: Mapping[str, float]) -> float:  # fmt: skip
+    """How far the joints' own errors move the highlights (px, RMS per axis) on the rig ``a`` describes."""
+    step, total, n = 1e-3, 0.0, 0  # deg: the highlight is smooth in the joints over far more than this
+    for cap in captures:
+        if cap.seen.highlight is None:
+            continue
+        base = cap.joints.as_dict()
+        for name in geometry.joint_names:
+            sd = float(joint_std_deg.get(name, 0.0))
+            if sd > 0.0:
+                up = predict(geometry, Joints.from_dict({**base, name: float(base[name]) + step}), a, np.zeros((0, 3)),
+                             focal_px, size)[1]  # fmt: skip
+                down = predict(geometry, Joints.from_dict({**base, name: float(base[name]) - step}), a,
+                               np.zeros((0, 3)), focal_px, size)[1]  # fmt: skip
+                total += float(np.sum(((up - down) / (2 * step) * sd) ** 2))
+        n += 2
+    return math.sqrt(total / n) if n else 0.0
 
 
 def _systematic(jac: FloatArray, problem: _Problem) -> FloatArray:
@@ -175,7 +229,7 @@ def _systematic(jac: FloatArray, problem: _Problem) -> FloatArray:
         for cap, sl in zip(problem.captures, rows, strict=True):
             h = cap.seen.highlight
             if h is not None:
-                shift[sl.stop - 2 + axis] = HIGHLIGHT_SYSTEMATIC_PX / max(h.std_error_px, HIGHLIGHT_FLOOR_PX)
+                shift[sl.stop - 2 + axis] = HIGHLIGHT_SYSTEMATIC_PX / problem.highlight_error(h)
         if shift.any():
             dp = np.linalg.lstsq(normal, jac.T @ shift, rcond=None)[0]
             out += np.outer(dp, dp)
@@ -229,11 +283,13 @@ def fit_geometry(
     start: Alignment | None = None,
     fixed: Sequence[str] = (),
     alpha: float | None = None,
+    joint_std_deg: Mapping[str, float] | None = None,
 ) -> GeometryFit:
     """Fit the layout's imperfections (``rig.alignment.model.PARAMETERS``, less ``fixed``) to the captures.
 
     ``alpha`` is the coat's GGX roughness: with it the highlights are compared with the coat's modelled
-    peak (``coat_peak``) instead of the bare mirror point.
+    peak (``coat_peak``) instead of the bare mirror point. ``joint_std_deg``: each joint's standard error
+    about what it reads (deg; an encoder count / sqrt(12)), which the highlights' scatter is judged against.
     """
     names = tuple(n for n in PARAMETERS[geometry.layout] if n not in fixed)
     n_corners = sum(len(c.seen.corner_ids) for c in captures)
@@ -243,22 +299,24 @@ def fit_geometry(
     keep = [np.ones(len(c.seen.corner_ids), dtype=bool) for c in captures]
     x0 = parameters_of(names, start or Alignment())
     sigma = 0.1
+    hl_sigma = 0.0
     result = None
     shifts = [np.zeros(2) for _ in captures]
-    for _ in range(2):  # the corners' scatter and the peaks' shifts are only known after a first fit
-        problem = _Problem(geometry, names, captures, corners_local_m, focal_px, size, sigma, keep, shifts)
+    for _ in range(2):  # the scatters and the peaks' shifts are only known after a first fit
+        problem = _Problem(geometry, names, captures, corners_local_m, focal_px, size, sigma, keep, shifts, hl_sigma)
         result = least_squares(problem.residuals, x0, method="trf", x_scale="jac", diff_step=1e-7, xtol=1e-12,
                                ftol=1e-12)  # fmt: skip
         x0 = result.x
-        _, corner_res, _ = problem.evaluate(result.x)
+        _, corner_res, hl_res = problem.evaluate(result.x)
         flat = np.concatenate([d[k] for d, k in zip(corner_res, keep, strict=True)]) if n_corners else np.zeros((0, 2))
         sigma = max(float(np.sqrt(np.mean(flat**2))), 1e-3) if flat.size else sigma
         keep = [np.all(np.abs(d) < 5 * sigma, axis=1) for d in corner_res]
+        hl_sigma = _highlight_scatter(captures, hl_res, len(names))
         if alpha is not None:
             estimate = alignment_of(names, result.x)
             shifts = [_shift(geometry, c, estimate, focal_px, size, alpha) for c in captures]
     assert result is not None
-    problem = _Problem(geometry, names, captures, corners_local_m, focal_px, size, sigma, keep, shifts)
+    problem = _Problem(geometry, names, captures, corners_local_m, focal_px, size, sigma, keep, shifts, hl_sigma)
     result = least_squares(problem.residuals, result.x, method="trf", x_scale="jac", diff_step=1e-7, xtol=1e-12,
                            ftol=1e-12)  # fmt: skip
     r, corner_res, hl_res = problem.evaluate(result.x)
@@ -284,6 +342,19 @@ def fit_geometry(
                         "the rig's model does not explain these captures and the errors understate the truth; a "
                         "glossier board coat (GGX alpha 0.01 or less, told with --alpha) or a look at the highlights "
                         "helps")  # fmt: skip
+    found = [c.seen.highlight for c in captures if c.seen.highlight is not None]
+    if found:
+        own = math.sqrt(float(np.mean([max(h.std_error_px, HIGHLIGHT_FLOOR_PX) ** 2 for h in found])))
+        jitter = _joint_jitter(geometry, captures, alignment_of(names, result.x), focal_px, size, joint_std_deg or {})
+        if math.hypot(own, hl_sigma) > HIGHLIGHT_SCATTER_LIMIT * math.hypot(own, jitter):
+            # The scatter is in the errors; but what makes highlights scatter (a lean, a loose joint) can bias them
+            # all alike, which no scatter shows: it is said.
+            warnings.append(f"the highlights scatter {hl_sigma:.2f} px about the fit, beyond their peak fits' "
+                            f"{own:.2g} px and the {jitter:.2g} px their joints' encoder counts move them by: the "
+                            "rig's model does not explain them and the errors may understate the truth (the "
+                            "scatter is in them, a bias common to the highlights is not); a glossier board coat "
+                            "(GGX alpha 0.01 or less, told with --alpha) or a look at the highlights and the joints "
+                            "helps")  # fmt: skip
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     corr = cov / np.outer(np.where(se > 0, se, 1.0), np.where(se > 0, se, 1.0))
     for i in range(len(names)):
@@ -295,4 +366,4 @@ def fit_geometry(
                     "add captures at other stage angles (more --captures)"
                 )
     return GeometryFit(names, np.asarray(result.x), cov, alignment_of(names, result.x), sigma, chi2, dof,
-                       corner_res, hl_res, tuple(warnings))  # fmt: skip
+                       corner_res, hl_res, tuple(warnings), hl_sigma)  # fmt: skip

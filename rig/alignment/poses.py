@@ -33,6 +33,8 @@ BOARD_TILT_DEG = 20.0
 #: foreshortening tells the camera's own angle best.
 BOARD_LIGHT_DEG = 20.0
 BOARD_CAMERA_DEG = 40.0
+#: How far the board poses' arm and tilt angles move over the round (deg), so that no two captures share one.
+BOARD_SPREAD_DEG = 3.0
 MIRROR_INCIDENCES_DEG = (20.0, 30.0, 40.0)
 #: Fewest captures a calibration can fit with: a handful of each kind.
 MIN_CAPTURES = 8
@@ -63,11 +65,16 @@ def plan_poses(geometry: RigGeometry, captures: int) -> CalibrationPoses:
     """The board and mirror poses of a calibration with ``captures`` captures on ``geometry``'s layout."""
     n_board, n_mirror = split(captures)
     k = np.arange(n_board)
-    light = BOARD_LIGHT_DEG + 6.0 * np.cos(2 * np.pi * k / 3)
-    camera = -(BOARD_CAMERA_DEG + 6.0 * np.sin(2 * np.pi * k / 4))
+    # A servo comes to rest the same way at the same goal, so a joint's error is shared by the captures that
+    # repeat its angle, which averages out over none of them and which no spread between captures shows: the
+    # camera at three angles over 15 captures put its zero 0.03 deg (3 standard errors) off. A spread of
+    # BOARD_SPREAD_DEG over the round gives every capture angles of its own.
+    spread = BOARD_SPREAD_DEG * ((k + 0.5) / n_board - 0.5)
+    light = BOARD_LIGHT_DEG + 6.0 * np.cos(2 * np.pi * k / 3) + spread
+    camera = -(BOARD_CAMERA_DEG + 6.0 * np.sin(2 * np.pi * k / 4) + spread)
     values: dict[str, FloatArray] = {"light": light, "camera": camera}
     if "tilt" in geometry.joint_names:
-        values["tilt"] = BOARD_TILT_DEG * np.cos(2 * np.pi * (k + 0.5) / n_board * 2)
+        values["tilt"] = BOARD_TILT_DEG * np.cos(2 * np.pi * (k + 0.5) / n_board * 2) + spread
         values["roll"] = -180.0 + 360.0 * (k + 0.5) / n_board
     if geometry.layout == "fixed_camera":
         values["yaw"] = geometry.camera_azimuth_deg - values.pop("camera")

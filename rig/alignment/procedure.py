@@ -149,6 +149,7 @@ def calibration_document(rig: RigConfig, fit: GeometryFit, board: ChArUcoBoard, 
             "corners_rms_px": float(np.sqrt(np.mean(corners**2))) if corners.size else None,
             "corner_std_error_px": fit.corner_sigma_px,
             "highlights_rms_px": float(np.sqrt(np.mean(np.square(hls)))) if hls else None,
+            "highlight_scatter_px": fit.highlight_sigma_px,
             "chi2": fit.chi2, "dof": fit.dof, "reduced_chi2": fit.reduced_chi2,
         },
         "captures": list(captures),
@@ -228,8 +229,10 @@ def calibrate_geometry(
             "the rig is misaligned beyond what the planned poses can catch (the light arm's zero, most likely, by "
             "several degrees); check the arms' zeros by eye and run again"
         )
+    # A joint rests anywhere within its encoder's count of what it reads: a uniform error, count / sqrt(12).
+    joint_std = {a.name: 1.0 / a.units_per_joint_degree / math.sqrt(12.0) for a in rig.axes}
     fit = fit_geometry(rig.geometry, caps, board.corners_local_m(), _focal(rig, hdrs[0]), _size(hdrs[0]),
-                       start=first.alignment, alpha=alpha)  # fmt: skip
+                       start=first.alignment, alpha=alpha, joint_std_deg=joint_std)  # fmt: skip
     for k, (cap, hdr, kind) in enumerate(zip(caps, hdrs, kinds, strict=True)):
         docs.append(_capture_doc(k, kind, cap, hdr, fit, k))
     doc = calibration_document(rig, fit, board, alpha, docs, inst.board.description)

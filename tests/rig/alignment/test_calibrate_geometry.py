@@ -83,7 +83,8 @@ def test_a_rig_file_applies_the_calibration_and_plan_shows_it(
         assert abs(point.joints.light - nominal.joints.light) > 0.2
     assert main(["plan", str(sweep), "--rig", str(rig_path)]) == 0
     out = capsys.readouterr()
-    assert "geometry calibration" in out.out and "zeros (deg) light +0.5" in out.out
+    # The calibration in force, as the file has it (12 captures know the light's zero to ~0.04 deg: its digits vary).
+    assert "geometry calibration" in out.out and f"zeros (deg) light {doc['light_zero_deg']['value']:+.3f}" in out.out
     assert "changed" not in out.err
     rig_path.touch()  # the rig file is now newer than its calibration
     assert main(["plan", str(sweep), "--rig", str(rig_path)]) == 0
@@ -126,3 +127,36 @@ def test_a_camera_too_coarse_for_the_board_is_refused_naming_the_key(
     rig = _rig_file(tmp_path, {}, resolution=32)
     assert main(["calibrate", "geometry", "--rig", str(rig), "--out", str(tmp_path), "--quiet"]) == 2
     assert "camera.resolution = [32, 32]" in capsys.readouterr().err
+
+
+EXAMPLE = Path(__file__).resolve().parents[3] / "examples" / "rig_misaligned.toml"
+#: What examples/rig_misaligned.toml hides from the controller.
+EXAMPLE_TRUTH = {
+    "light_zero_deg": 0.5, "camera_zero_deg": -0.3, "tilt_zero_deg": 0.2, "roll_zero_deg": 0.4,
+    "sample_tilt_deg": 0.6, "sample_tilt_azimuth_deg": 30.0, "sample_offset_mm": [1.0, -0.8, 0.5],
+}  # fmt: skip
+
+
+def test_the_shipped_misaligned_rig_is_recovered_within_three_standard_errors(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The example as shipped, stray light, a disk lamp, its falloff and drift and servos resting anywhere within
+    # their count included, at the resolution and captures of the test above (it ships 512 px for 30 captures).
+    # Its stray light made board poses find no corners and the mirror poses miss the lamp ("in view in only 6
+    # of 15"), and the joints' rest scattered the highlights beyond their errors (chi2/dof 137).
+    text = EXAMPLE.read_text()
+    assert "resolution = [512, 512]" in text and "spp = 4" in text
+    rig = tmp_path / "rig_misaligned.toml"
+    rig.write_text(text.replace("resolution = [512, 512]", "resolution = [320, 320]").replace("spp = 4", "spp = 2"))
+    assert load_rig(rig).file.simulation.misalignment.model_dump(include=set(EXAMPLE_TRUTH)) == {
+        k: tuple(v) if isinstance(v, list) else v for k, v in EXAMPLE_TRUTH.items()
+    }
+    assert main(["calibrate", "geometry", "--rig", str(rig), "--out", str(tmp_path), "--captures", "12"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("(board): ") == 6 and "(board): 0 corners" not in err, err
+    assert err.count("(mirror): highlight") == 6, err
+    doc = json.loads((tmp_path / "geometry_calibration.json").read_text())
+    assert doc["residuals"]["reduced_chi2"] < 2 and not doc["warnings"], (doc["residuals"], doc["warnings"])
+    for name, truth in EXAMPLE_TRUTH.items():
+        value, se = np.asarray(doc[name]["value"]), np.asarray(doc[name]["std_error"])
+        assert np.all(np.abs(value - truth) <= 3 * se), (name, value, se, truth)
