@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import select
 import sys
+from collections.abc import Iterator
 from typing import Any
 
 from rig.instrument.clock import ScaledClock
@@ -158,12 +161,34 @@ def _rig(args: argparse.Namespace) -> int:
         server = threading.Thread(target=tether.serve, args=(stop,), kwargs={"on_error": _announce}, daemon=True)
         server.start()
         try:
-            for text in sys.stdin:
+            for text in _lines(sys.stdin.fileno()):
                 _answer(tether, text)
         finally:
             stop.set()
             server.join(timeout=10)
     return 0
+
+
+def _lines(fd: int, wake_s: float = 0.2) -> Iterator[str]:
+    """The lines typed on ``fd`` until its end, waking every ``wake_s`` seconds in between.
+
+    Once Mitsuba's render threads run, the kernel may hand Ctrl-C to one of them, and a main thread blocked in
+    a read would never see it: waking keeps Ctrl-C (and SIGTERM's KeyboardInterrupt) prompt.
+    """
+    pending = b""
+    while True:
+        ready, _, _ = select.select([fd], [], [], wake_s)
+        if not ready:
+            continue
+        chunk = os.read(fd, 65536)
+        if not chunk:
+            if pending:
+                yield pending.decode(errors="replace")
+            return
+        pending += chunk
+        *done, pending = pending.split(b"\n")
+        for line in done:
+            yield line.decode(errors="replace") + "\n"
 
 
 #: What ``scene`` takes on the rehearsal's input (``simulator.rehearsal.SCENES``; listed here for --help).
