@@ -65,9 +65,11 @@ def test_an_adaptive_sweep_stopped_and_resumed(rehearsed: tuple[Rehearsal, Path,
 def test_the_camera_calibration_finds_the_sensor(rehearsed: tuple[Rehearsal, Path, Path]) -> None:
     reh, rig, tmp = rehearsed
     calibration = w.check_camera_calibration(Operator(reh, tmp), rig, tmp)
-    gain = calibration["e_per_dn"]
-    assert isinstance(gain, dict)
-    assert abs(gain["value"] - 4.0) <= 3 * gain["std_error"]  # the rehearsal's sensor: [camera.noise] defaults
+    found = calibration["parameters"]
+    assert isinstance(found, dict)
+    # The rehearsal's sensor is [camera.noise]'s defaults: 4 e-/DN, 3 e- read noise, black at 512 DN.
+    for key, truth in (("e_per_dn", 4.0), ("read_noise_e", 3.0), ("black_level_dn", 512.0)):
+        assert abs(found[key]["value"] - truth) <= 3 * found[key]["std_error"], (key, found[key])
 
 
 def test_the_geometry_calibration_of_the_misaligned_rig(tmp_path: Path) -> None:
