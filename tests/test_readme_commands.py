@@ -73,6 +73,9 @@ HOW: dict[str, tuple[str, str]] = {
     ".venv/bin/gonio sim grbl --axes XYZ": ("serve", ""),
     ".venv/bin/gonio sim grbl --axes XYZA --homing": ("serve", ""),
     ".venv/bin/gonio sim rig --rig examples/rig_simulated.toml": ("serve", ""),
+    ".venv/bin/gonio sim rig --rig examples/rig_dynamixel.toml --frames /tmp/tether --speed 10": ("serve", ""),
+    ".venv/bin/gonio sim rig --rig examples/rig_misaligned.toml --link grbl --frames /tmp/tether "
+    "--write-rig /tmp/lab.toml": ("serve", ""),
     ".venv/bin/gonio sim rig --rig examples/rig_simulated_grbl.toml": ("serve", ""),
     ".venv/bin/gonio run examples/sweep_in_plane.toml --rig examples/rig_simulated_grbl.toml --out runs/gold-grbl":
         ("run", ""),
