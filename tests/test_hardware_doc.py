@@ -13,6 +13,7 @@ recommends on the bus gonio reads it from; and every link leads to a file and he
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import shlex
 import tomllib
@@ -144,13 +145,18 @@ def _latency_messages(tmp_path: Path) -> list[str]:
 def _permission_message(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> str:
     from gonio import cli, cli_servo
 
-    port = tmp_path / "ttyUSB0"
-    port.touch()
+    # A pseudo-terminal stands in for the adapter: servo check refuses anything that is no terminal device.
+    master, slave = os.openpty()
+    port = Path(os.ttyname(slave))
     # Tests run as root here, who may open anything: the check is shown a port it may not open, owned by dialout.
     monkeypatch.setattr(cli_servo.os, "access", lambda *a, **k: False)
     monkeypatch.setattr(cli_servo.grp, "getgrgid", lambda gid: SimpleNamespace(gr_name="dialout"))
     monkeypatch.setenv("GONIO_SYSFS", str(tmp_path / "no-sysfs"))
-    assert cli.main(["servo", "check", "--port", str(port)]) == 3
+    try:
+        assert cli.main(["servo", "check", "--port", str(port)]) == 3
+    finally:
+        os.close(slave)
+        os.close(master)
     line = next(x for x in capsys.readouterr().out.splitlines() if "you may not open it" in x)
     return line.replace(str(port), "/dev/ttyUSB0")
 
