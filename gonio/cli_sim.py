@@ -14,6 +14,7 @@ import sys
 from collections.abc import Iterator
 from typing import Any
 
+from gonio.cli_errors import EXIT_CAMERA, CliError
 from rig.instrument.clock import ScaledClock
 from rig.instrument.links.dynamixel_bus import SDK_BAUDRATES
 
@@ -68,6 +69,21 @@ def capture_seconds(text: str) -> float:
     if not (math.isfinite(value) and value > 0):
         raise ValueError(f"'capture {text}': expected 'capture SECONDS' with SECONDS a positive number")
     return value
+
+
+def _positive(what: str) -> Any:
+    """A parser of a positive, finite number, its error naming ``what``."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"{what} {text!r}: expected a positive number")
+        return value
+
+    return parse
 
 
 def _announce(line: str) -> None:
@@ -218,6 +234,29 @@ def _answer(tether: Any, text: str) -> None:
         print(f"error: {text.strip()!r}: {exc}", flush=True)
 
 
+def _shoot(args: argparse.Namespace) -> int:
+    import time
+    from pathlib import Path
+
+    from acquisition.cameras.shot_request import withdraw_request, write_request
+    from acquisition.frame import ExposureSettings
+
+    folder = Path(args.folder)
+    if not folder.is_dir():
+        raise CliError(f"--folder {args.folder}: no such directory (the hot folder gonio sim rig --frames serves)")
+    # The controller that runs this trigger is the client: its frames' noise streams go on across its triggers.
+    request = write_request(folder, ExposureSettings(args.exposure_s, args.gain), args.index, client=os.getppid())
+    deadline = time.monotonic() + args.timeout_s
+    while request.exists():
+        if time.monotonic() > deadline:
+            withdraw_request(request)
+            print(f"gonio sim shoot: no rehearsal answered in {folder} within {args.timeout_s:g} s "
+                  "(is gonio sim rig running with --frames there?)", file=sys.stderr)  # fmt: skip
+            return EXIT_CAMERA
+        time.sleep(0.005)
+    return 0
+
+
 #: The material of ``gonio sim merl`` without --rig: a glossy paint (a diffuse base under a GGX dielectric coat).
 PAINT = {"model": "CookTorrance", "alpha": 0.2, "fresnel": "dielectric", "eta": 1.5, "rho_d": [0.2, 0.3, 0.4]}
 
@@ -305,6 +344,21 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
                           "smallest sensor centred on its camera.roi)")  # fmt: skip
     rig.add_argument("--write-rig", metavar="PATH", help="write the hardware rig file a controller uses here (TOML)")
     rig.set_defaults(func=_rig)
+    shoot = kinds.add_parser(
+        "shoot", help="a tether trigger for the rehearsal: ask gonio sim rig for one frame and wait until it is shot",
+        description="Leaves a shot request in the rehearsal's hot folder and returns once gonio sim rig has taken "
+        "it (the frame's file follows at once). As a rig file's [camera] trigger it stands where a tethering "
+        "program's remote would: trigger = [\"gonio\", \"sim\", \"shoot\", \"--folder\", \"/tmp/tether\", "
+        "\"--exposure-s\", \"{exposure_s}\", \"--gain\", \"{gain}\", \"--index\", \"{index}\"].",
+        epilog="Example: gonio sim shoot --folder /tmp/tether --exposure-s 0.01",
+    )  # fmt: skip
+    shoot.add_argument("--folder", required=True, help="the hot folder gonio sim rig --frames serves")
+    shoot.add_argument("--exposure-s", type=_positive("exposure"), required=True, help="exposure in seconds")
+    shoot.add_argument("--gain", type=_positive("gain"), default=1.0, help="linear gain (default 1)")
+    shoot.add_argument("--index", type=int, default=0, help="the frame's number, for the request's name (default 0)")
+    shoot.add_argument("--timeout-s", type=_positive("timeout"), default=60.0,
+                       help="seconds to wait for the rehearsal (default 60)")  # fmt: skip
+    shoot.set_defaults(func=_shoot)
     merl = kinds.add_parser(
         "merl", help="write a MERL .binary file of a known material, to try gonio analyze on",
         description="Tabulates a material at the MERL bins (90 x 90 x 180 half/difference angles, three channels: "

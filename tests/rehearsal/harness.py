@@ -145,7 +145,8 @@ class Operator:
         while True:
             if time.monotonic() > deadline:
                 proc.kill()
-                raise AssertionError(f"gonio {' '.join(args)} did not end within {timeout_s} s:\n{seen.decode()[-3000:]}")
+                tail = seen.decode(errors="replace")[-3000:]
+                raise AssertionError(f"gonio {' '.join(args)} did not end within {timeout_s} s:\n{tail}")
             sel.select(1.0)
             chunk = proc.stdout.read() or b""
             seen += chunk

@@ -9,6 +9,7 @@ misalignments found by ``gonio calibrate geometry`` through the folder camera.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -77,3 +78,21 @@ def test_the_geometry_calibration_of_the_misaligned_rig(tmp_path: Path) -> None:
     with w.rehearsal_of(w.ROOT / "examples" / "rig_misaligned.toml", tmp_path / "frames", "--link", "dynamixel",
                         "--write-rig", str(written)) as reh:  # fmt: skip
         w.check_geometry_calibration(Operator(reh, tmp_path), written, tmp_path / "calib", 30, MISALIGNED)
+
+
+def test_a_run_shot_by_a_trigger_command(rehearsed: tuple[Rehearsal, Path, Path]) -> None:
+    # A rig file whose camera is fired by a trigger, as a gphoto2 command would fire a real one: the folder
+    # camera runs `gonio sim shoot` per frame with the frame's settings filled in, and leaves no request itself.
+    reh, rig, tmp = rehearsed
+    python = sys.executable
+    trigger = (f'["{python}", "-m", "gonio.cli", "sim", "shoot", "--folder", "{reh.frames}", "--exposure-s", '
+               '"{exposure_s}", "--gain", "{gain}", "--index", "{index}"]')
+    triggered = tmp / "triggered.toml"
+    triggered.write_text(rig.read_text().replace('[camera]\n', f'[camera]\ntrigger = {trigger}\n', 1))
+    sweep = tmp / "sweep.toml"
+    sweep.write_text(w.SWEEP)
+    op = Operator(reh, tmp)
+    done = op.run("run", str(sweep), "--rig", str(triggered), "--out", str(tmp / "triggered"), "--quiet")
+    assert done.status == 0, done.output
+    assert len(w.table(tmp / "triggered")) == 8
+    assert not list(reh.frames.glob(".gonio-shot-*")), "a request was left behind"

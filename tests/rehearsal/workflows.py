@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import csv
 import json
-from collections.abc import Iterator
 from pathlib import Path
 
 from tests.rehearsal.harness import Operator, Rehearsal
@@ -84,7 +83,8 @@ def check_run_interrupt_resume(op: Operator, rig: Path, sweep: Path, tmp: Path) 
     assert first.status == 0, first.output
     assert "measured 8 points (0 from before), 4 reference readings" in first.output
     assert sum("place the reference tile" in p for p in first.prompts) == 4
-    stopped = op.run("run", str(sweep), "--rig", str(rig), "--out", str(cut), "--quiet", interrupt_after="before point 3")
+    stopped = op.run("run", str(sweep), "--rig", str(rig), "--out", str(cut), "--quiet",
+                     interrupt_after="before point 3")  # fmt: skip
     assert stopped.status == 130, stopped.output
     assert f"gonio resume {cut}" in stopped.output
     resumed = op.run("resume", str(cut), "--quiet")
