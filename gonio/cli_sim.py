@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Iterator
 from typing import Any
 
 from rig.instrument.clock import ScaledClock
@@ -158,12 +159,42 @@ def _rig(args: argparse.Namespace) -> int:
         server = threading.Thread(target=tether.serve, args=(stop,), kwargs={"on_error": _announce}, daemon=True)
         server.start()
         try:
-            for text in sys.stdin:
+            for text in _input_lines():
                 _answer(tether, text)
         finally:
             stop.set()
             server.join(timeout=10)
     return 0
+
+
+def _input_lines(poll_s: float = 0.2) -> Iterator[str]:
+    """The lines typed on stdin, until its end; Ctrl-C (SIGINT) stops the rehearsal at any time.
+
+    The renderer's LLVM JIT, once it has started in the tethering thread, owns SIGINT at the C level, and a
+    Ctrl-C then never reached Python: the rehearsal ignored it. Between polls of stdin, the main thread puts
+    Python's handler back.
+    """
+    import os
+    import selectors
+    import signal
+
+    fd = sys.stdin.fileno()
+    sel = selectors.DefaultSelector()
+    sel.register(fd, selectors.EVENT_READ)
+    pending = b""
+    while True:
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+        if not sel.select(poll_s):
+            continue
+        chunk = os.read(fd, 65536)
+        if not chunk:
+            break
+        pending += chunk
+        *lines, pending = pending.split(b"\n")
+        yield from (line.decode(errors="replace") + "\n" for line in lines)
+    if pending:
+        yield pending.decode(errors="replace")
 
 
 #: What ``scene`` takes on the rehearsal's input (``simulator.rehearsal.SCENES``; listed here for --help).
