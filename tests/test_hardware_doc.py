@@ -5,12 +5,12 @@ Every command of the guide's shell blocks has a class in ``HOW`` (one added to t
 - ``serve``: a simulator the guide starts; the test starts it from that very line and keeps it for the module
   (``gonio sim rig`` with the shipped rig file replaced by a copy with a smaller ROI, see ``SMALL_ROI``, and
   its frames in a temporary folder; ``gonio sim servos`` as written).
-- ``run``: run as written against what a ``serve`` line serves (``WHERE``), in the guide's order, in a working
-  directory where ``examples/rig_dynamixel.toml`` / ``examples/rig_grbl.toml`` are copies pointed at the
-  rehearsal (its port and frames folder, and the served file's ROI: nothing else changed) and ``/dev/ttyUSB0``
-  / ``/dev/ttyACM0`` are the rehearsal's port, exactly as section 0 tells a newcomer. Its prompts are
-  answered as a person at the rig would (the harness sets the scene, then presses Enter; y to a question).
-  Each must exit 0 and leave what the guide says it does.
+- ``run``: run as written against what the ``serve`` line named beside it serves, in the guide's order, in a
+  working directory where ``examples/rig_dynamixel.toml`` / ``examples/rig_grbl.toml`` are copies pointed at
+  the rehearsal (its port and frames folder, the served file's ROI, and ``SNAPPY``: nothing else changed)
+  and ``/dev/ttyUSB0`` / ``/dev/ttyACM0`` are the rehearsal's port, as section 0 tells a newcomer. Its
+  prompts are answered as a person at the rig would (the harness sets the scene, then presses Enter; y to
+  a question). Each must exit 0 and leave what the guide says it does.
 - ``parsed``: needs a person with root on real hardware (sudo, a USB adapter's sysfs); the reason is given.
   Its programs must be the system tools the guide explains, its sysfs path where gonio reads.
 
@@ -57,6 +57,12 @@ RIGS = {"dynamixel": "examples/rig_dynamixel.toml", "grbl": "examples/rig_grbl.t
 #: geometry calibration, which wants >= 20 px per 6 mm board square: a 512 x 384 sensor. The GRBL one only
 #: measures a sweep: 256 x 192. Section 0 of the guide says the same to a user.
 SMALL_ROI = {"dynamixel": "[248, 184, 264, 200]", "grbl": "[120, 88, 136, 104]"}
+
+#: The folder camera waits until a frame's size has held for ``stable_polls`` polls ``poll_interval_s`` apart
+#: (2 and 0.1 s by default: ~0.2 s a frame, half a minute of a camera calibration's 156 frames). The
+#: rehearsal writes each DNG under a temporary name and renames it, complete at once, for which the camera's
+#: documentation says one poll is enough; so the copies poll once, every 20 ms. Nothing else is changed.
+SNAPPY = "stable_polls = 1\npoll_interval_s = 0.02"
 
 _SUDO_ONLY = "needs root on the rig's computer"
 _SYSFS = ("an FTDI adapter's sysfs file: the rehearsal's port is a pseudo-terminal, which has no latency timer "
@@ -264,8 +270,10 @@ class Lab:
         reh = self.stack.enter_context(
             Rehearsal(("--rig", str(served), "--speed", args["--speed"]), self.base / link / "frames")
         )
-        # Section 0: a copy of the rig file with its port and folder pointed at the rehearsal, nothing else.
-        reh.rig_file(served, self.work / args["--rig"])
+        # Section 0: a copy of the rig file with its port and folder pointed at the rehearsal, and (SNAPPY) the
+        # folder camera told how the rehearsal writes its frames.
+        copy = reh.rig_file(served, self.work / args["--rig"])
+        copy.write_text(re.sub(r"(?m)^folder = .*$", lambda m: f"{m.group(0)}\n{SNAPPY}", copy.read_text(), count=1))
         self.ports[link], self.rehearsals[link] = reh.port, reh
 
     def operator(self, where: str) -> Operator:
