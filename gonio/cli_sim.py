@@ -179,13 +179,16 @@ def _input_lines(poll_s: float = 0.2) -> Iterator[str]:
     import signal
 
     fd = sys.stdin.fileno()
-    sel = selectors.DefaultSelector()
-    sel.register(fd, selectors.EVENT_READ)
+    sel: selectors.BaseSelector | None = selectors.DefaultSelector()
+    try:
+        sel.register(fd, selectors.EVENT_READ)  # type: ignore[union-attr]
+    except (OSError, ValueError):  # a regular file or /dev/null (epoll takes neither): reads never block
+        sel = None
     pending = b""
     while True:
         if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
             signal.signal(signal.SIGINT, signal.default_int_handler)
-        if not sel.select(poll_s):
+        if sel is not None and not sel.select(poll_s):
             continue
         chunk = os.read(fd, 65536)
         if not chunk:
