@@ -62,7 +62,7 @@ SMALL_ROI = {"dynamixel": "[248, 184, 264, 200]", "grbl": "[120, 88, 136, 104]"}
 #: The folder camera waits until a frame's size has held for ``stable_polls`` polls ``poll_interval_s`` apart
 #: (2 and 0.1 s by default: ~0.2 s a frame, half a minute of a camera calibration's 156 frames). The
 #: rehearsal writes each DNG under a temporary name and renames it, complete at once, for which the camera's
-#: documentation says one poll is enough; so the copies poll once, every 20 ms. Nothing else is changed.
+#: documentation says one poll is enough; so the copies poll once, every 20 ms, as section 0 allows.
 SNAPPY = "stable_polls = 1\npoll_interval_s = 0.02"
 
 _SUDO_ONLY = "needs root on the rig's computer"
