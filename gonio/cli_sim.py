@@ -170,9 +170,9 @@ def _rig(args: argparse.Namespace) -> int:
 def _input_lines(poll_s: float = 0.2) -> Iterator[str]:
     """The lines typed on stdin, until its end; Ctrl-C (SIGINT) stops the rehearsal at any time.
 
-    The renderer's LLVM JIT, once it has started in the tethering thread, owns SIGINT at the C level, and a
-    Ctrl-C then never reached Python: the rehearsal ignored it. Between polls of stdin, the main thread puts
-    Python's handler back.
+    Once the renderer has run in the tethering thread (Mitsuba and its JIT), SIGINT's C-level handler is no
+    longer Python's, and a Ctrl-C never reached the main thread: the rehearsal ignored it. Between polls of
+    stdin, the main thread puts Python's handler back (unless someone set another one on purpose).
     """
     import os
     import selectors
