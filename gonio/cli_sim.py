@@ -60,13 +60,19 @@ def _grbl_axes(text: str) -> str:
     return text
 
 
-def capture_seconds(text: str) -> float:
-    """The exposure of a ``capture SECONDS`` line typed to ``gonio sim rig``; ValueError says what is expected."""
+def _positive_number(text: str) -> float | None:
+    """``text`` as a positive, finite number, or None."""
     try:
         value = float(text)
     except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
+        return None
+    return value if math.isfinite(value) and value > 0 else None
+
+
+def capture_seconds(text: str) -> float:
+    """The exposure of a ``capture SECONDS`` line typed to ``gonio sim rig``; ValueError says what is expected."""
+    value = _positive_number(text)
+    if value is None:
         raise ValueError(f"'capture {text}': expected 'capture SECONDS' with SECONDS a positive number")
     return value
 
@@ -75,11 +81,8 @@ def _positive(what: str) -> Any:
     """A parser of a positive, finite number, its error naming ``what``."""
 
     def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        if not (math.isfinite(value) and value > 0):
+        value = _positive_number(text)
+        if value is None:
             raise argparse.ArgumentTypeError(f"{what} {text!r}: expected a positive number")
         return value
 

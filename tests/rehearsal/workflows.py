@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import json
+from collections.abc import Iterator
 from pathlib import Path
 
 from tests.rehearsal.harness import Operator, Rehearsal
@@ -35,6 +36,10 @@ isotropic = true
 [capture]
 target_snr = 100.0
 """
+
+#: ``examples/rig_misaligned.toml``'s [simulation.misalignment], which its controller is not told.
+MISALIGNED = {"light_zero_deg": 0.5, "camera_zero_deg": -0.3, "tilt_zero_deg": 0.2, "roll_zero_deg": 0.4,
+              "sample_tilt_deg": 0.6, "sample_tilt_azimuth_deg": 30.0, "sample_offset_mm": [1.0, -0.8, 0.5]}
 
 
 def small_rig(link: str, tmp: Path) -> Path:
@@ -157,3 +162,38 @@ def check_geometry_calibration(op: Operator, rig: Path, out: Path, captures: int
         for v, se, t in pairs:
             assert abs(v - t) <= 3 * se, (name, found[name], true)
     return found
+
+
+Rehearsed = tuple[Rehearsal, Path, Path]
+"""A running rehearsal of a link's shipped rig file, the controller's copy of that file, and a folder to work in."""
+
+
+def rehearsed_shipped(link: str, tmp: Path) -> Iterator[Rehearsed]:
+    """The body of a link's module fixture: its shipped rig file rehearsed (see the module docstring)."""
+    shipped = small_rig(link, tmp)
+    with rehearsal_of(shipped, tmp / "frames") as reh:
+        yield reh, reh.rig_file(shipped, tmp / "rig.toml"), tmp
+
+
+class Workflows:
+    """The workflows both links run; a link's test file subclasses it as ``Test...`` with its ``rehearsed`` fixture."""
+
+    def test_a_run_stopped_and_resumed_is_analysed(self, rehearsed: Rehearsed) -> None:
+        reh, rig, tmp = rehearsed
+        sweep = tmp / "sweep.toml"
+        sweep.write_text(SWEEP)
+        op = Operator(reh, tmp)
+        whole, cut = check_run_interrupt_resume(op, rig, sweep, tmp)
+        check_analyze(op, whole, cut, tmp)
+
+    def test_an_adaptive_sweep_stopped_and_resumed(self, rehearsed: Rehearsed) -> None:
+        reh, rig, tmp = rehearsed
+        check_adaptive(Operator(reh, tmp), rig, tmp)
+
+    def test_the_camera_calibration_finds_the_sensor(self, rehearsed: Rehearsed) -> None:
+        reh, rig, tmp = rehearsed
+        found = check_camera_calibration(Operator(reh, tmp), rig, tmp)["parameters"]
+        assert isinstance(found, dict)
+        # The rehearsal's sensor is [camera.noise]'s defaults: 4 e-/DN, 3 e- read noise, black at 512 DN.
+        for key, truth in (("e_per_dn", 4.0), ("read_noise_e", 3.0), ("black_level_dn", 512.0)):
+            assert abs(found[key]["value"] - truth) <= 3 * found[key]["std_error"], (key, found[key])
