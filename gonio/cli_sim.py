@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import selectors
 import sys
+from collections.abc import Iterator
 from typing import Any
 
 from rig.instrument.clock import ScaledClock
@@ -158,12 +161,39 @@ def _rig(args: argparse.Namespace) -> int:
         server = threading.Thread(target=tether.serve, args=(stop,), kwargs={"on_error": _announce}, daemon=True)
         server.start()
         try:
-            for text in sys.stdin:
+            for text in typed_lines(sys.stdin.fileno()):
                 _answer(tether, text)
         finally:
             stop.set()
             server.join(timeout=10)
     return 0
+
+
+def typed_lines(fd: int, wake_s: float = 0.2) -> Iterator[str]:
+    """The lines read from ``fd`` until its end, with Python woken at least every ``wake_s`` seconds meanwhile.
+
+    Ctrl-C must stop ``gonio sim rig`` at once, but a read blocked on stdin would not see it: Mitsuba's render
+    puts back SIGINT's handler with ``signal()``, which adds SA_RESTART, so the kernel restarts the read after
+    the handler has only noted the signal, and Python raised KeyboardInterrupt at the next line typed (a
+    harness waited out its 60 s and killed the rehearsal). A select with a timeout returns to Python either way.
+    """
+    sel = selectors.DefaultSelector()
+    sel.register(fd, selectors.EVENT_READ)
+    pending = b""
+    try:
+        while True:
+            if not sel.select(wake_s):
+                continue
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                break
+            *lines, pending = (pending + chunk).split(b"\n")
+            for line in lines:
+                yield line.decode(errors="replace") + "\n"
+        if pending:
+            yield pending.decode(errors="replace")
+    finally:
+        sel.close()
 
 
 #: What ``scene`` takes on the rehearsal's input (``simulator.rehearsal.SCENES``; listed here for --help).
