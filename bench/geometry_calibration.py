@@ -19,7 +19,7 @@ rehearsal's (GGX alpha 0.01, what ``scene board`` mounts). --rig FILE calibrates
     .venv/bin/python -m bench.geometry_calibration --rigs 20
     .venv/bin/python -m bench.geometry_calibration --rigs 6 --dial
     .venv/bin/python -m bench.geometry_calibration --rigs 20 --rehearsal dynamixel
-    .venv/bin/python -m bench.geometry_calibration --rig examples/rig_misaligned.toml --rehearsal grbl --captures 30
+    .venv/bin/python -m bench.geometry_calibration --rigs 1 --rig examples/rig_misaligned.toml --rehearsal grbl
 """
 
 from __future__ import annotations
@@ -227,7 +227,7 @@ def main() -> None:
         help="calibrate through gonio sim rig on this link and the folder camera (separate processes)",
     )
     p.add_argument("--speed", type=float, default=50.0, help="the rehearsal's time factor (default 50)")
-    p.add_argument("--rig", help="a simulated rig file to calibrate (--rigs times) instead of random rigs")
+    p.add_argument("--rig", help="a simulated rig file to calibrate instead of random rigs (give --rigs 1)")
     args = p.parse_args()
     if args.rehearsal and args.alpha != 0.01:
         p.error("--rehearsal: the board the rehearsal mounts has a coat of alpha 0.01; leave --alpha at 0.01")

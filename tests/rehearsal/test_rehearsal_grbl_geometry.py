@@ -6,8 +6,8 @@ controller on a pty, a tethering program writing whole-sensor DNG frames) with i
 link homed before it moves), the operator mounting the board when asked. Every quantity the calibration
 reports must lie within 3 of its standard errors of the rig's hidden misalignment.
 
-CAPTURES: 12 recover it within 3 SE (largest |z| 2.3, the sample's tilt) as 30 do (largest 2.2) in 35 s of
-calibration instead of 62 (docs/benchmarks.md, geometry calibration through the rehearsal).
+CAPTURES: 12 recover it within 3 SE (largest |z| 2.3, the sample's tilt) as 30 do (largest 1.9-2.2) in 35 s of
+calibration instead of 48-62 (docs/benchmarks.md, geometry calibration through the rehearsal).
 """
 
 from __future__ import annotations
