@@ -27,3 +27,43 @@ def test_capture_line_with_a_bad_exposure_says_what_is_expected(text: str) -> No
 @pytest.mark.parametrize(("text", "seconds"), [("0.01", 0.01), ("2", 2.0), ("1e-4", 1e-4)])
 def test_capture_line_with_a_positive_exposure_is_read(text: str, seconds: float) -> None:
     assert capture_seconds(text) == seconds
+
+
+def test_typed_lines_are_read_whole_and_the_last_one_without_its_newline() -> None:
+    import os
+
+    from gonio.cli_sim import typed_lines
+
+    read_end, write_end = os.pipe()
+    os.write(write_end, b"scene board\ncapture 0.")
+    os.write(write_end, b"5\nscene sample")
+    os.close(write_end)
+    try:
+        assert list(typed_lines(read_end)) == ["scene board\n", "capture 0.5\n", "scene sample"]
+    finally:
+        os.close(read_end)
+
+
+def test_ctrl_c_stops_the_wait_for_a_line_though_sigint_restarts_reads() -> None:
+    # Mitsuba's render leaves SIGINT's handler with SA_RESTART; a blocked read then never raised KeyboardInterrupt.
+    import os
+    import signal
+    import threading
+    import time
+
+    from gonio.cli_sim import typed_lines
+
+    read_end, write_end = os.pipe()
+    signal.siginterrupt(signal.SIGINT, False)  # SA_RESTART, as a render leaves it
+    timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT))
+    start = time.monotonic()
+    try:
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            list(typed_lines(read_end, wake_s=0.05))
+        assert time.monotonic() - start < 5.0
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # Python's own handler again, without SA_RESTART
+        os.close(read_end)
+        os.close(write_end)

@@ -73,12 +73,19 @@ class Rehearsal:
 
     def __exit__(self, *exc: object) -> None:
         assert self.proc is not None
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
+        # Ctrl-D first (communicate closes its input): a shell without job control starts a background job
+        # with SIGINT ignored, and a rehearsal started under one (a script run with `&`) would wait out the
+        # timeout below at every stop if it were told with Ctrl-C only.
+        try:
+            self.proc.communicate(timeout=60)
+            return
+        except subprocess.TimeoutExpired:
+            pass
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            self.proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
         self.proc.communicate(timeout=60)
 
     def read_line(self, timeout_s: float) -> str:

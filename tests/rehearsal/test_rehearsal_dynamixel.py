@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
@@ -28,6 +27,8 @@ def rehearsed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[w.Rehearsed]
 class TestDynamixel(w.Workflows):
     """The shared workflows, and what only a Dynamixel rig has or this file shows once for both links."""
 
+    link = "dynamixel"
+
     def test_servo_commands_find_and_move_the_rehearsed_servos(self, rehearsed: w.Rehearsed) -> None:
         reh, rig, tmp = rehearsed
         op = Operator(reh, tmp)
@@ -42,12 +43,6 @@ class TestDynamixel(w.Workflows):
         move = op.run("servo", "move", "--rig", str(rig), "light", "20")
         assert move.status == 0, move.output
         assert "light" in move.output
-
-    def test_the_geometry_calibration_of_the_misaligned_rig(self, tmp_path: Path) -> None:
-        written = tmp_path / "rig.toml"
-        with w.rehearsal_of(w.ROOT / "examples" / "rig_misaligned.toml", tmp_path / "frames", "--link", "dynamixel",
-                            "--write-rig", str(written)) as reh:  # fmt: skip
-            w.check_geometry_calibration(Operator(reh, tmp_path), written, tmp_path / "calib", 30, w.MISALIGNED)
 
     def test_a_run_shot_by_a_trigger_command(self, rehearsed: w.Rehearsed) -> None:
         # A rig file whose camera is fired by a trigger, as a gphoto2 command would fire a real one: the folder

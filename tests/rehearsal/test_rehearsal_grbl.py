@@ -3,7 +3,7 @@
 The shipped ``examples/rig_grbl.toml`` (port, folder and ROI changed, see ``workflows.py``) against ``gonio sim
 rig``: the camera calibration with the operator's light and lens cap, a run stopped with Ctrl-C at a mid-run
 reference and resumed (the controller homes again after the port is opened anew), its analyses, and an
-adaptive sweep stopped and resumed. The geometry calibration on this link: ``test_rehearsal_grbl_geometry.py``.
+adaptive sweep stopped and resumed. The geometry calibration of ``examples/rig_misaligned.toml`` served on this link.
 """
 
 from __future__ import annotations
@@ -24,3 +24,5 @@ def rehearsed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[w.Rehearsed]
 
 class TestGrbl(w.Workflows):
     """The shared workflows on the GRBL link (the controller homes again each time the port is opened)."""
+
+    link = "grbl"
