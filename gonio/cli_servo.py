@@ -267,7 +267,7 @@ def _check(args: argparse.Namespace) -> int:
         timer = None
         problems += 1
     if timer is None:
-        print(f"{real.name}: no USB latency timer (not an FTDI-style USB serial adapter, e.g. a CDC-ACM board or a "
+        print(f"{real}: no USB latency timer (not an FTDI-style USB serial adapter, e.g. a CDC-ACM board or a "
               "pseudo-terminal): nothing to set")  # fmt: skip
     else:
         advice = latency_advice(timer, args.latency_ms)

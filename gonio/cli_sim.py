@@ -9,11 +9,12 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import selectors
+import select
 import sys
 from collections.abc import Iterator
 from typing import Any
 
+from gonio.cli_errors import EXIT_CAMERA, CliError
 from rig.instrument.clock import ScaledClock
 from rig.instrument.links.dynamixel_bus import SDK_BAUDRATES
 
@@ -59,15 +60,33 @@ def _grbl_axes(text: str) -> str:
     return text
 
 
-def capture_seconds(text: str) -> float:
-    """The exposure of a ``capture SECONDS`` line typed to ``gonio sim rig``; ValueError says what is expected."""
+def _positive_number(text: str) -> float | None:
+    """``text`` as a positive, finite number, or None."""
     try:
         value = float(text)
     except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
+        return None
+    return value if math.isfinite(value) and value > 0 else None
+
+
+def capture_seconds(text: str) -> float:
+    """The exposure of a ``capture SECONDS`` line typed to ``gonio sim rig``; ValueError says what is expected."""
+    value = _positive_number(text)
+    if value is None:
         raise ValueError(f"'capture {text}': expected 'capture SECONDS' with SECONDS a positive number")
     return value
+
+
+def _positive(what: str) -> Any:
+    """A parser of a positive, finite number, its error naming ``what``."""
+
+    def parse(text: str) -> float:
+        value = _positive_number(text)
+        if value is None:
+            raise argparse.ArgumentTypeError(f"{what} {text!r}: expected a positive number")
+        return value
+
+    return parse
 
 
 def _announce(line: str) -> None:
@@ -161,7 +180,7 @@ def _rig(args: argparse.Namespace) -> int:
         server = threading.Thread(target=tether.serve, args=(stop,), kwargs={"on_error": _announce}, daemon=True)
         server.start()
         try:
-            for text in typed_lines(sys.stdin.fileno()):
+            for text in _lines(sys.stdin.fileno()):
                 _answer(tether, text)
         finally:
             stop.set()
@@ -169,31 +188,28 @@ def _rig(args: argparse.Namespace) -> int:
     return 0
 
 
-def typed_lines(fd: int, wake_s: float = 0.2) -> Iterator[str]:
-    """The lines read from ``fd`` until its end, with Python woken at least every ``wake_s`` seconds meanwhile.
+def _lines(fd: int, wake_s: float = 0.2) -> Iterator[str]:
+    """The lines typed on ``fd`` until its end, waking every ``wake_s`` seconds in between.
 
-    Ctrl-C must stop ``gonio sim rig`` at once, but a read blocked on stdin would not see it: Mitsuba's render
-    puts back SIGINT's handler with ``signal()``, which adds SA_RESTART, so the kernel restarts the read after
-    the handler has only noted the signal, and Python raised KeyboardInterrupt at the next line typed (a
-    harness waited out its 60 s and killed the rehearsal). A select with a timeout returns to Python either way.
+    Mitsuba's render puts SIGINT's handler back with glibc's ``signal()``, which adds SA_RESTART (measured: the
+    sigaction flags go from SA_ONSTACK to SA_RESTART across one ``mi.render``), so the kernel restarts a read
+    blocked on stdin after the handler has only noted Ctrl-C, and Python raised KeyboardInterrupt at the next
+    line typed. A select returns to Python either way: waking keeps Ctrl-C (and SIGTERM's) prompt.
     """
-    sel = selectors.DefaultSelector()
-    sel.register(fd, selectors.EVENT_READ)
     pending = b""
-    try:
-        while True:
-            if not sel.select(wake_s):
-                continue
-            chunk = os.read(fd, 65536)
-            if not chunk:
-                break
-            *lines, pending = (pending + chunk).split(b"\n")
-            for line in lines:
-                yield line.decode(errors="replace") + "\n"
-        if pending:
-            yield pending.decode(errors="replace")
-    finally:
-        sel.close()
+    while True:
+        ready, _, _ = select.select([fd], [], [], wake_s)
+        if not ready:
+            continue
+        chunk = os.read(fd, 65536)
+        if not chunk:
+            if pending:
+                yield pending.decode(errors="replace")
+            return
+        pending += chunk
+        *done, pending = pending.split(b"\n")
+        for line in done:
+            yield line.decode(errors="replace") + "\n"
 
 
 #: What ``scene`` takes on the rehearsal's input (``simulator.rehearsal.SCENES``; listed here for --help).
@@ -221,6 +237,29 @@ def _answer(tether: Any, text: str) -> None:
             print(f"error: {text.strip()!r}: expected 'capture SECONDS' or 'scene {'|'.join(SCENE_WORDS)}'", flush=True)
     except ValueError as exc:
         print(f"error: {text.strip()!r}: {exc}", flush=True)
+
+
+def _shoot(args: argparse.Namespace) -> int:
+    import time
+    from pathlib import Path
+
+    from acquisition.cameras.shot_request import withdraw_request, write_request
+    from acquisition.frame import ExposureSettings
+
+    folder = Path(args.folder)
+    if not folder.is_dir():
+        raise CliError(f"--folder {args.folder}: no such directory (the hot folder gonio sim rig --frames serves)")
+    # The controller that runs this trigger is the client: its frames' noise streams go on across its triggers.
+    request = write_request(folder, ExposureSettings(args.exposure_s, args.gain), args.index, client=os.getppid())
+    deadline = time.monotonic() + args.timeout_s
+    while request.exists():
+        if time.monotonic() > deadline:
+            withdraw_request(request)
+            print(f"gonio sim shoot: no rehearsal answered in {folder} within {args.timeout_s:g} s "
+                  "(is gonio sim rig running with --frames there?)", file=sys.stderr)  # fmt: skip
+            return EXIT_CAMERA
+        time.sleep(0.005)
+    return 0
 
 
 #: The material of ``gonio sim merl`` without --rig: a glossy paint (a diffuse base under a GGX dielectric coat).
@@ -310,6 +349,21 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
                           "smallest sensor centred on its camera.roi)")  # fmt: skip
     rig.add_argument("--write-rig", metavar="PATH", help="write the hardware rig file a controller uses here (TOML)")
     rig.set_defaults(func=_rig)
+    shoot = kinds.add_parser(
+        "shoot", help="a tether trigger for the rehearsal: ask gonio sim rig for one frame and wait until it is shot",
+        description="Leaves a shot request in the rehearsal's hot folder and returns once gonio sim rig has taken "
+        "it (the frame's file follows at once). As a rig file's [camera] trigger it stands where a tethering "
+        "program's remote would: trigger = [\"gonio\", \"sim\", \"shoot\", \"--folder\", \"/tmp/tether\", "
+        "\"--exposure-s\", \"{exposure_s}\", \"--gain\", \"{gain}\", \"--index\", \"{index}\"].",
+        epilog="Example: gonio sim shoot --folder /tmp/tether --exposure-s 0.01",
+    )  # fmt: skip
+    shoot.add_argument("--folder", required=True, help="the hot folder gonio sim rig --frames serves")
+    shoot.add_argument("--exposure-s", type=_positive("exposure"), required=True, help="exposure in seconds")
+    shoot.add_argument("--gain", type=_positive("gain"), default=1.0, help="linear gain (default 1)")
+    shoot.add_argument("--index", type=int, default=0, help="the frame's number, for the request's name (default 0)")
+    shoot.add_argument("--timeout-s", type=_positive("timeout"), default=60.0,
+                       help="seconds to wait for the rehearsal (default 60)")  # fmt: skip
+    shoot.set_defaults(func=_shoot)
     merl = kinds.add_parser(
         "merl", help="write a MERL .binary file of a known material, to try gonio analyze on",
         description="Tabulates a material at the MERL bins (90 x 90 x 180 half/difference angles, three channels: "

@@ -10,6 +10,10 @@ class fails the suite. The classes:
   loaded and validated, sources a run directory or a MERL file, a Makefile target dry-run by ``make -n``),
   because running it would take long; the reason is given for each. ``GONIO_README_FULL=1`` runs these too,
   except those marked ``never`` (a placeholder host, the test suite itself, a study of many minutes).
+- ``rehearse``: a hardware workflow (a ``gonio servo`` command, or one naming ``examples/rig_dynamixel.toml`` or
+  ``examples/rig_grbl.toml``): run as written against a rehearsal of that rig file (``gonio sim rig --speed 20``,
+  one per rig file for the module), with ``/dev/ttyUSB0`` / ``/dev/ttyACM0`` its port and the rig file a copy
+  pointed at it (port and frames folder); it must exit 0. Every such command must be in this class.
 - ``help``: not gonio's (Dask's servers on a lab's machines, with a placeholder address): the program and its
   subcommand must exist (``--help`` exits 0).
 
@@ -18,6 +22,7 @@ The full run (``GONIO_README_FULL=1 .venv/bin/pytest tests/test_readme_commands.
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import os
 import re
@@ -28,10 +33,13 @@ import signal
 import subprocess
 import sys
 import tomllib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+
+from tests.rehearsal.harness import Operator, Rehearsal
 
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
@@ -44,8 +52,7 @@ HOW: dict[str, tuple[str, str]] = {
     ".venv/bin/gonio plan examples/sweep_in_plane.toml --rig examples/rig_simulated.toml": ("run", ""),
     ".venv/bin/gonio run examples/sweep_in_plane.toml --rig examples/rig_simulated.toml --out runs/gold": ("run", ""),
     ".venv/bin/gonio resume runs/gold": ("run", ""),
-    ".venv/bin/gonio calibrate camera --rig examples/rig_simulated_raw.toml --out calib/":
-        ("dry", "a photon-transfer series of ~8 s; tests/gonio/test_cli_calibrate.py runs it"),
+    ".venv/bin/gonio calibrate camera --rig examples/rig_simulated_raw.toml --out calib/": ("run", ""),
     ".venv/bin/gonio analyze runs/gold": ("run", ""),
     ".venv/bin/gonio analyze runs/gold --models lambert,ggx_conductor --merl --out runs/gold/analysis-ggx":
         ("dry", "a second analysis with a 35 MB MERL export, ~30 s; tests/analysis runs both"),
@@ -73,7 +80,13 @@ HOW: dict[str, tuple[str, str]] = {
     ".venv/bin/gonio sim grbl --axes XYZ": ("serve", ""),
     ".venv/bin/gonio sim grbl --axes XYZA --homing": ("serve", ""),
     ".venv/bin/gonio sim rig --rig examples/rig_simulated.toml": ("serve", ""),
+    ".venv/bin/gonio sim rig --rig examples/rig_dynamixel.toml --frames /tmp/tether --speed 10": ("serve", ""),
+    ".venv/bin/gonio sim rig --rig examples/rig_misaligned.toml --link grbl --frames /tmp/tether "
+    "--write-rig /tmp/lab.toml": ("serve", ""),
     ".venv/bin/gonio sim rig --rig examples/rig_simulated_grbl.toml": ("serve", ""),
+    ".venv/bin/gonio sim rig --rig examples/rig_dynamixel.toml --frames out/rehearsal --speed 20": ("serve", ""),
+    ".venv/bin/gonio servo check --port /dev/ttyUSB0 1 2 3 4": ("rehearse", ""),
+    ".venv/bin/gonio servo move --rig examples/rig_dynamixel.toml light 0": ("rehearse", ""),
     ".venv/bin/gonio run examples/sweep_in_plane.toml --rig examples/rig_simulated_grbl.toml --out runs/gold-grbl":
         ("run", ""),
 }  # fmt: skip
@@ -81,6 +94,10 @@ HOW[".venv/bin/gonio calibrate geometry --rig examples/rig_misaligned.toml --out
     "dry",
     "a ChArUco round of rendered HDR whole frames, minutes; issue 17's tests run the calibration",
 )
+
+
+#: The hardware rig files, and the ports they name: a command using one runs against a rehearsal of it.
+HARDWARE_RIGS = {"examples/rig_dynamixel.toml": "/dev/ttyUSB0", "examples/rig_grbl.toml": "/dev/ttyACM0"}
 
 
 def _blocks(lang: tuple[str, ...]) -> list[str]:
@@ -106,7 +123,12 @@ def test_every_readme_command_is_classified_and_every_class_is_used():
     assert not unknown, f"README commands without a class in {Path(__file__).name}: {unknown}"
     stale = sorted(set(HOW) - {_key(c) for c in COMMANDS})
     assert not stale, f"classes for commands the README no longer has: {stale}"
-    assert {how for how, _ in HOW.values()} == {"run", "serve", "dry", "never", "help"}
+    assert {how for how, _ in HOW.values()} == {"run", "serve", "dry", "never", "help", "rehearse"}
+    # A hardware workflow is rehearsed, never only parsed (the rehearsal that serves it is no workflow).
+    for command, (how, _reason) in HOW.items():
+        words = command.split()
+        hardware = words[1:2] == ["servo"] or any(w in HARDWARE_RIGS for w in words)
+        assert (how == "rehearse") == (hardware and words[1:3] != ["sim", "rig"]), command
 
 
 def test_the_readme_links_only_inside_the_repository():
@@ -218,16 +240,51 @@ def _dry(command: str, cwd: Path) -> None:
     _inputs(args, cwd)
 
 
+@pytest.fixture(scope="module")
+def rehearsals(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, tuple[Rehearsal, Path]]]:
+    """Per hardware rig file, started on first use: its rehearsal and the copy of the file pointed at it."""
+    with contextlib.ExitStack() as stack:
+        yield _Rehearsals(tmp_path_factory.mktemp("rehearsal"), stack)
+
+
+class _Rehearsals(dict[str, tuple[Rehearsal, Path]]):
+    def __init__(self, base: Path, stack: contextlib.ExitStack) -> None:
+        super().__init__()
+        self.base, self.stack = base, stack
+
+    def __missing__(self, rig: str) -> tuple[Rehearsal, Path]:
+        where = self.base / Path(rig).stem
+        reh = self.stack.enter_context(Rehearsal(("--rig", str(ROOT / rig), "--speed", "20"), where / "frames"))
+        self[rig] = (reh, reh.rig_file(ROOT / rig, where / Path(rig).name))
+        return self[rig]
+
+
+def _rehearse(command: str, cwd: Path, rehearsals: dict[str, tuple[Rehearsal, Path]]) -> None:
+    """Run a hardware workflow as written against a rehearsal of its rig file (the Dynamixel one for a port)."""
+    argv = shlex.split(command, comments=True)
+    assert argv[0] == ".venv/bin/gonio", command
+    rig = next((w for w in argv if w in HARDWARE_RIGS), None)
+    if rig is None:
+        port = next(w for w in argv if w in HARDWARE_RIGS.values())
+        rig = next(r for r, p in HARDWARE_RIGS.items() if p == port)
+    reh, copy = rehearsals[rig]
+    words = [str(copy) if w == rig else reh.port if w in HARDWARE_RIGS.values() else w for w in argv[1:]]
+    done = Operator(reh, cwd).run(*words, answer_yes=True)
+    assert done.status == 0, f"{command} (on {reh.port})\nexit {done.status}\n{done.output[-3000:]}"
+
+
 @pytest.mark.slow
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("index", range(len(COMMANDS)), ids=[c[:70] for c in COMMANDS])
-def test_readme_command_runs_as_written(index: int, clone: Path) -> None:
+def test_readme_command_runs_as_written(index: int, clone: Path, rehearsals: dict[str, tuple[Rehearsal, Path]]) -> None:
     command = COMMANDS[index]
     how, _reason = HOW[_key(command)]
     if how == "run" or (how == "dry" and FULL):
         _run(command, clone)
     elif how == "serve":
         _serve(command, clone)
+    elif how == "rehearse":
+        _rehearse(command, clone, rehearsals)
     elif how in ("dry", "never"):
         if how == "never" and not command.startswith("make"):
             from gonio.cli import build_parser

@@ -42,9 +42,12 @@ def _shutter(exposure_s: float) -> str:
     return shutter_text(exposure_s)
 
 
-def write_request(folder: Path, settings: ExposureSettings, index: int) -> Path:
-    """Leave a request for frame ``index`` at ``settings`` in ``folder``, atomically; returns its path."""
-    name = f".gonio-shot-{index:06d}-{os.getpid()}.json"
+def write_request(folder: Path, settings: ExposureSettings, index: int, client: int | None = None) -> Path:
+    """Leave a request for frame ``index`` at ``settings`` in ``folder``, atomically; returns its path.
+
+    ``client`` names the controller asking (its process id, this process's by default).
+    """
+    name = f".gonio-shot-{index:06d}-{os.getpid() if client is None else client}.json"
     path = folder / name
     staging = folder / f"{name}.part"
     body = {"format": REQUEST_FORMAT, "index": index, "exposure_s": settings.exposure_s, "gain": settings.gain,

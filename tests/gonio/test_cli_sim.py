@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import selectors
 import signal
 import subprocess
@@ -154,6 +155,30 @@ def test_sim_rig_serves_servos_and_writes_frames_of_the_pose_they_hold(tmp_path)
         assert "expected 'capture SECONDS'" in _first_line(proc, timeout_s=120.0)
         proc.stdin.close()
         assert proc.wait(timeout=120) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(timeout=120)
+
+
+@pytest.mark.mitsuba
+def test_ctrl_c_stops_sim_rig_after_it_has_rendered(tmp_path) -> None:
+    """Ctrl-C ends the rehearsal after a frame too (once the renderer had run, SIGINT never reached it)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gonio.cli", "sim", "rig", "--frames", str(tmp_path), "--speed", "20"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        _first_line(proc, timeout_s=300.0)
+        assert proc.stdin is not None
+        proc.stdin.write("capture 0.01\n")
+        proc.stdin.flush()
+        assert _first_line(proc, timeout_s=300.0).endswith(".dng")
+        proc.send_signal(signal.SIGINT)
+        # The bound only ends a rehearsal that ignores Ctrl-C; the exit status is what is checked.
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(timeout=120)
+        assert proc.poll() == 130, f"gonio sim rig did not stop on Ctrl-C (status {proc.poll()})"
     finally:
         if proc.poll() is None:
             proc.kill()

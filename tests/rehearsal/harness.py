@@ -131,13 +131,21 @@ class Result:
 class Operator:
     """Runs gonio commands against a rehearsal and answers their prompts as a person at the rig."""
 
-    def __init__(self, rehearsal: Rehearsal, cwd: Path) -> None:
+    def __init__(self, rehearsal: Rehearsal | None, cwd: Path) -> None:
+        """``rehearsal`` None: a bare simulator (``gonio sim servos``), which has no scene to set."""
         self.rehearsal = rehearsal
         self.cwd = cwd
 
-    def run(self, *args: str, interrupt_after: str | None = None, timeout_s: float = COMMAND_TIMEOUT_S) -> Result:
-        """Run ``gonio ARGS``; with ``interrupt_after``, send SIGINT once that text has been printed."""
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    def run(self, *args: str, interrupt_after: str | None = None, answer_yes: bool = False,
+            timeout_s: float = COMMAND_TIMEOUT_S) -> Result:  # fmt: skip
+        """Run ``gonio ARGS``; with ``interrupt_after``, send SIGINT once that text has been printed.
+
+        ``answer_yes``: answer gonio's ``[y/N]`` questions (``gonio servo set-id`` ...) with y, as the person
+        commissioning the rig does; otherwise they get Enter, which declines.
+        """
+        # This checkout's gonio whatever the working directory (an installed one elsewhere must not answer).
+        path = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p)
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": path}
         proc = subprocess.Popen(gonio_argv(*args), stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, cwd=self.cwd, env=env)  # fmt: skip
         assert proc.stdout is not None and proc.stdin is not None
@@ -152,21 +160,23 @@ class Operator:
         while True:
             if time.monotonic() > deadline:
                 proc.kill()
-                raise AssertionError(f"gonio {' '.join(args)} did not end within {timeout_s} s:\n{seen.decode()[-3000:]}")
+                tail = seen.decode(errors="replace")[-3000:]
+                raise AssertionError(f"gonio {' '.join(args)} did not end within {timeout_s} s:\n{tail}")
             sel.select(1.0)
             chunk = proc.stdout.read() or b""
             seen += chunk
             text = seen.decode(errors="replace")
             # A prompt ends its line with ": " and waits for Enter: one answer per prompt printed.
-            asked = [m.group(0) for m in re.finditer(r"[^\n]*?press Enter: ", text)]
+            asked = [m.group(0) for m in re.finditer(r"[^\n]*?(press Enter: |\[y/N\] )", text)]
             for prompt in asked[answered:]:
                 scene = next((s for key, s in PROMPTS if key.lower() in prompt.lower()), None)
                 if scene is not None:
+                    assert self.rehearsal is not None, f"{prompt!r} asks for a scene, and no rehearsal serves one"
                     reply = self.rehearsal.say(f"scene {scene}")
                     assert reply == f"scene {scene}", reply
                 prompts.append(prompt.strip())
                 try:
-                    proc.stdin.write(b"\n")
+                    proc.stdin.write(b"y\n" if answer_yes and prompt.endswith("[y/N] ") else b"\n")
                     proc.stdin.flush()
                 except BrokenPipeError:
                     pass

@@ -1,0 +1,67 @@
+"""Every hardware workflow of the README and docs/hardware.md on a Dynamixel rig, through the rehearsal.
+
+The shipped ``examples/rig_dynamixel.toml`` (port, folder and ROI changed, see ``workflows.py``) against
+``gonio sim rig``: the servo commands on its bus, the camera and geometry calibrations with the operator's
+light, lens cap and board, a run stopped with Ctrl-C at a mid-run reference and resumed, its analyses, and an
+adaptive sweep stopped and resumed; then ``examples/rig_misaligned.toml`` served on this link, its
+misalignments found by ``gonio calibrate geometry`` through the folder camera.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.rehearsal import workflows as w
+from tests.rehearsal.harness import Operator
+
+pytestmark = [pytest.mark.slow, pytest.mark.mitsuba]
+
+@pytest.fixture(scope="module")
+def rehearsed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[w.Rehearsed]:
+    yield from w.rehearsed_shipped("dynamixel", tmp_path_factory.mktemp("dynamixel"))
+
+
+class TestDynamixel(w.Workflows):
+    """The shared workflows, and what only a Dynamixel rig has or this file shows once for both links."""
+
+    def test_servo_commands_find_and_move_the_rehearsed_servos(self, rehearsed: w.Rehearsed) -> None:
+        reh, rig, tmp = rehearsed
+        op = Operator(reh, tmp)
+        scan = op.run("servo", "scan", "--port", reh.port, "--bauds", "1000000")
+        assert scan.status == 0, scan.output
+        found = [line.split()[:5] for line in scan.output.splitlines() if line.startswith("id")]
+        assert found == [["id", str(i), "1000000", "baud", "XM430-W350"] for i in (1, 2, 3, 4)], scan.output
+        check = op.run("servo", "check", "--port", reh.port, "--latency-ms", "1", "1", "2", "3", "4")
+        assert check.status == 0, check.output
+        status = op.run("servo", "status", "--port", reh.port, "1", "2")
+        assert status.status == 0, status.output
+        move = op.run("servo", "move", "--rig", str(rig), "light", "20")
+        assert move.status == 0, move.output
+        assert "light" in move.output
+
+    def test_the_geometry_calibration_of_the_misaligned_rig(self, tmp_path: Path) -> None:
+        written = tmp_path / "rig.toml"
+        with w.rehearsal_of(w.ROOT / "examples" / "rig_misaligned.toml", tmp_path / "frames", "--link", "dynamixel",
+                            "--write-rig", str(written)) as reh:  # fmt: skip
+            w.check_geometry_calibration(Operator(reh, tmp_path), written, tmp_path / "calib", 30, w.MISALIGNED)
+
+    def test_a_run_shot_by_a_trigger_command(self, rehearsed: w.Rehearsed) -> None:
+        # A rig file whose camera is fired by a trigger, as a gphoto2 command would fire a real one: the folder
+        # camera runs `gonio sim shoot` per frame with the frame's settings filled in, and leaves no request itself.
+        reh, rig, tmp = rehearsed
+        python = sys.executable
+        trigger = (f'["{python}", "-m", "gonio.cli", "sim", "shoot", "--folder", "{reh.frames}", "--exposure-s", '
+                   '"{exposure_s}", "--gain", "{gain}", "--index", "{index}"]')
+        triggered = tmp / "triggered.toml"
+        triggered.write_text(rig.read_text().replace('[camera]\n', f'[camera]\ntrigger = {trigger}\n', 1))
+        sweep = tmp / "sweep.toml"
+        sweep.write_text(w.SWEEP)
+        op = Operator(reh, tmp)
+        done = op.run("run", str(sweep), "--rig", str(triggered), "--out", str(tmp / "triggered"), "--quiet")
+        assert done.status == 0, done.output
+        assert len(w.table(tmp / "triggered")) == 8
+        assert not list(reh.frames.glob(".gonio-shot-*")), "a request was left behind"
