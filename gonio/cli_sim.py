@@ -191,8 +191,10 @@ def _rig(args: argparse.Namespace) -> int:
 def _lines(fd: int, wake_s: float = 0.2) -> Iterator[str]:
     """The lines typed on ``fd`` until its end, waking every ``wake_s`` seconds in between.
 
-    Once Mitsuba's render threads run, the kernel may hand Ctrl-C to one of them, and a main thread blocked in
-    a read would never see it: waking keeps Ctrl-C (and SIGTERM's KeyboardInterrupt) prompt.
+    Mitsuba's render puts SIGINT's handler back with glibc's ``signal()``, which adds SA_RESTART (measured: the
+    sigaction flags go from SA_ONSTACK to SA_RESTART across one ``mi.render``), so the kernel restarts a read
+    blocked on stdin after the handler has only noted Ctrl-C, and Python raised KeyboardInterrupt at the next
+    line typed. A select returns to Python either way: waking keeps Ctrl-C (and SIGTERM's) prompt.
     """
     pending = b""
     while True:

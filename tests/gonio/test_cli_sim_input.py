@@ -29,17 +29,17 @@ def test_capture_line_with_a_positive_exposure_is_read(text: str, seconds: float
     assert capture_seconds(text) == seconds
 
 
-def test_typed_lines_are_read_whole_and_the_last_one_without_its_newline() -> None:
+def test_input_lines_are_read_whole_and_the_last_one_without_its_newline() -> None:
     import os
 
-    from gonio.cli_sim import typed_lines
+    from gonio.cli_sim import _lines
 
     read_end, write_end = os.pipe()
     os.write(write_end, b"scene board\ncapture 0.")
     os.write(write_end, b"5\nscene sample")
     os.close(write_end)
     try:
-        assert list(typed_lines(read_end)) == ["scene board\n", "capture 0.5\n", "scene sample"]
+        assert list(_lines(read_end)) == ["scene board\n", "capture 0.5\n", "scene sample"]
     finally:
         os.close(read_end)
 
@@ -51,7 +51,7 @@ def test_ctrl_c_stops_the_wait_for_a_line_though_sigint_restarts_reads() -> None
     import threading
     import time
 
-    from gonio.cli_sim import typed_lines
+    from gonio.cli_sim import _lines
 
     read_end, write_end = os.pipe()
     signal.siginterrupt(signal.SIGINT, False)  # SA_RESTART, as a render leaves it
@@ -60,7 +60,7 @@ def test_ctrl_c_stops_the_wait_for_a_line_though_sigint_restarts_reads() -> None
     try:
         timer.start()
         with pytest.raises(KeyboardInterrupt):
-            list(typed_lines(read_end, wake_s=0.05))
+            list(_lines(read_end, wake_s=0.05))
         assert time.monotonic() - start < 5.0
     finally:
         timer.cancel()
