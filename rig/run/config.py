@@ -68,8 +68,8 @@ def _plain(value: Any) -> Any:
     return [_plain(v) for v in value] if isinstance(value, tuple) else value
 
 
-def _allowed_keys(model: type[BaseModel], loc: tuple[int | str, ...]) -> list[str]:
-    """The keys the table at ``loc`` accepts (for an unknown-key message)."""
+def _table_model(model: type[BaseModel], loc: tuple[int | str, ...]) -> type[BaseModel] | None:
+    """The model of the table that holds the key at ``loc`` (None where ``loc`` leaves the schema)."""
     current: Any = model
     parts = list(loc[:-1])
     while parts and current is not None:
@@ -78,9 +78,14 @@ def _allowed_keys(model: type[BaseModel], loc: tuple[int | str, ...]) -> list[st
         ann = info.annotation if info is not None else None
         if typing.get_origin(ann) is dict:
             # A table of named tables such as [axes.<joint>]: skip the free name, go on in its value's model.
-            ann = typing.get_args(ann)[1]
-            parts = parts[1:]
+            ann, parts = typing.get_args(ann)[1], parts[1:]
         current = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
+    return current
+
+
+def _allowed_keys(model: type[BaseModel], loc: tuple[int | str, ...]) -> list[str]:
+    """The keys the table at ``loc`` accepts (for an unknown-key message)."""
+    current = _table_model(model, loc)
     return sorted(current.model_fields) if current is not None else []
 
 
@@ -92,15 +97,7 @@ def _range(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:
     """`` from 1 to 20000000`` (or ``>= 0`` ...) for the key at ``loc`` if its schema bounds it, else ``""``."""
     if not loc or not isinstance(loc[-1], str):
         return ""
-    current: Any = model
-    parts = list(loc[:-1])
-    while parts and current is not None:
-        part = parts.pop(0)
-        info = current.model_fields.get(part) if isinstance(part, str) else None
-        ann = info.annotation if info is not None else None
-        if typing.get_origin(ann) is dict:
-            ann, parts = typing.get_args(ann)[1], parts[1:]
-        current = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
+    current = _table_model(model, loc)
     info = current.model_fields.get(loc[-1]) if current is not None else None
     if info is None:
         return ""
