@@ -119,3 +119,21 @@ def reference_relative_errors(out: str | Path) -> np.ndarray:
     rounds = sorted(Path(out).glob("round-*"))
     recs = [r for d in rounds for r in RunStore.read(d).records() if r["kind"] == "reference"]
     return np.array([np.asarray(r["reading_std_error"]) / np.asarray(r["reading"]) for r in recs])
+
+
+def run_outcome(sim: SimulatedRig, rig: RigConfig, sweep: SweepConfig, plan: Any, store: RunStore, camera: Camera,
+                link: MotionLink | None = None) -> Any:
+    """Run ``plan`` on ``sim`` through ``camera`` (and ``link``, else one opened on it): its summary, or the
+    RunStopped that ended it; the store is closed either way."""
+    from rig.run.runner import Runner, RunStopped
+    from rig.run.session import capture_settings, options_for, reference_settings
+
+    runner = Runner(plan, store, link or open_link(sim, rig), camera, sim.clock, rig.geometry,
+                    capture_settings(rig, sweep), reference=reference_settings(rig), target=sim.reference,
+                    options=options_for(rig, sweep, False))  # fmt: skip
+    try:
+        return runner.run()
+    except RunStopped as exc:
+        return exc
+    finally:
+        store.close()

@@ -8,13 +8,13 @@ from typing import Any
 
 import pytest
 
-from rig.run.runner import Runner, RunStopped
-from rig.run.session import capture_settings, make_plan, manifest, options_for, reference_settings
+from rig.run.runner import RunStopped
+from rig.run.session import make_plan, manifest, options_for
 from rig.run.store import RunStore
 from simulator.from_config import rig_from
 from simulator.grbl.noise import LineNoise
 from simulator.grbl_rig import SimulatedGrblRig
-from tests.run_helpers import FlakyCamera, in_plane_sweep, left_safe, read_rows, sim_rig
+from tests.run_helpers import FlakyCamera, in_plane_sweep, left_safe, read_rows, run_outcome, sim_rig
 
 pytestmark = pytest.mark.mitsuba
 
@@ -38,15 +38,7 @@ def _lossy_run(tmp_path: Path, drop: float, garble: float, seed: int) -> tuple[A
         camera = FlakyCamera(sim.camera, actions)
         # A lost report costs reply_timeout_s of wall time: short, yet far beyond the pty's answer.
         link = sim.open_link(reply_timeout_s=0.2)
-        runner = Runner(plan, store, link, camera, sim.clock, rig.geometry, capture_settings(rig, sweep),
-                        reference=reference_settings(rig), target=sim.reference,
-                        options=options_for(rig, sweep, False))  # fmt: skip
-        try:
-            outcome: Any = runner.run()
-        except RunStopped as exc:
-            outcome = exc
-        finally:
-            store.close()
+        outcome: Any = run_outcome(sim, rig, sweep, plan, store, camera, link)
         assert left_safe(sim)
         return outcome, RunStore.read(tmp_path / "run"), noise[0], sim.clock.now(), link.session.replies_lost
 

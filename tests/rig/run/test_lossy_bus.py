@@ -11,12 +11,12 @@ from typing import Any
 
 import pytest
 
-from rig.run.runner import Runner, RunStopped
-from rig.run.session import capture_settings, make_plan, manifest, options_for, reference_settings
+from rig.run.runner import RunStopped
+from rig.run.session import make_plan, manifest, options_for
 from rig.run.store import RunStore
 from simulator.from_config import rig_from
 from simulator.rig import SimulatedRig
-from tests.run_helpers import FlakyCamera, in_plane_sweep, left_safe, open_link, sim_rig
+from tests.run_helpers import FlakyCamera, in_plane_sweep, left_safe, run_outcome, sim_rig
 
 pytestmark = pytest.mark.mitsuba
 
@@ -38,15 +38,7 @@ def _lossy_run(tmp_path: Path, drop: float) -> tuple[Any, RunStore, bool]:
                 servo.faults.drop_probability = drop
 
         camera = FlakyCamera(sim.camera, {1: lose})
-        runner = Runner(plan, store, open_link(sim, rig), camera, sim.clock, rig.geometry, capture_settings(rig, sweep),
-                        reference=reference_settings(rig), target=sim.reference,
-                        options=options_for(rig, sweep, False))  # fmt: skip
-        try:
-            outcome: Any = runner.run()
-        except RunStopped as exc:
-            outcome = exc
-        finally:
-            store.close()
+        outcome: Any = run_outcome(sim, rig, sweep, plan, store, camera)
         safe = left_safe(sim)
         dropped = sim.bus.stats.replies_dropped if sim.bus is not None else 0
     if drop:

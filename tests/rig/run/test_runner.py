@@ -40,6 +40,7 @@ from tests.run_helpers import (
     left_safe,
     open_link,
     read_rows,
+    run_outcome,
     sim_rig,
     truth_and_measured,
 )
@@ -102,15 +103,7 @@ def _run(
     with rig_from(rig, spec=spec) as sim:
         assert sim.camera is not None
         camera = FlakyCamera(sim.camera, actions(sim) if actions else {})
-        runner = Runner(plan, store, open_link(sim, rig), camera, sim.clock, rig.geometry, capture_settings(rig, sweep),
-                        reference=reference_settings(rig), target=sim.reference,
-                        options=options_for(rig, sweep, False))  # fmt: skip
-        try:
-            outcome: Any = runner.run()
-        except RunStopped as exc:
-            outcome = exc
-        finally:
-            store.close()
+        outcome: Any = run_outcome(sim, rig, sweep, plan, store, camera)
         safe = left_safe(sim)
     return RunStore.read(tmp_path / "run"), sim, (outcome, safe)
 
