@@ -60,12 +60,13 @@ def _input_errors() -> tuple[type[BaseException], ...]:
     from rig.instrument.kinematics_types import UnreachableError
     from rig.run.adaptive_state import AdaptiveStateError
     from rig.run.config import ConfigError
+    from rig.run.reference import OperatorAbsent
     from rig.run.registry import BackendError
     from rig.run.store import RunStoreError
 
     return (CliError, ConfigError, RunStoreError, AnalysisError, AxisLimitError, GeometryError, UnreachableError,
             ParameterError, ModelFormatError, MerlFormatError, FitError, FlatFieldError, CalibrationError,
-            BackendError, BackendNotInstalledError, AdaptiveStateError)  # fmt: skip
+            BackendError, BackendNotInstalledError, AdaptiveStateError, OperatorAbsent)  # fmt: skip
 
 
 def _camera_errors() -> tuple[type[BaseException], ...]:

@@ -12,6 +12,8 @@ import sys
 from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
+from rig.run.reference import operator_prompt
+
 
 @runtime_checkable
 class FlatSource(Protocol):
@@ -40,7 +42,7 @@ class ManualFlatSource:
 
     def __init__(self, ask: Callable[[str], str] | None = None,
                  description: str = "flat-field source placed by hand") -> None:  # fmt: skip
-        self._ask = ask or input
+        self._ask = operator_prompt(ask or input)
         self._description = description
 
     @property

@@ -16,6 +16,25 @@ from typing import Protocol, runtime_checkable
 from acquisition.board import ChArUcoBoard
 
 
+class OperatorAbsent(RuntimeError):
+    """A prompt for the operator found standard input closed: nobody is there to answer it."""
+
+
+def operator_prompt(ask: Callable[[str], str]) -> Callable[[str], str]:
+    """``ask`` (``input`` by default), raising OperatorAbsent where input has ended (a script, no terminal)."""
+
+    def prompt(text: str) -> str:
+        try:
+            return ask(text)
+        except EOFError:
+            raise OperatorAbsent(
+                f"gonio asked the operator {text.strip().rstrip(':')!r}, but standard input is closed: run it "
+                "where someone can answer (a terminal), or give it what it asks for on its input"
+            ) from None
+
+    return prompt
+
+
 @runtime_checkable
 class ReferenceTarget(Protocol):
     """Something that can put the reference tile in view (``present``) and take it away (``withdraw``)."""
@@ -38,7 +57,7 @@ class ManualReference:
     """An operator swaps the tile by hand, prompted on the terminal (``ask`` is ``input`` by default)."""
 
     def __init__(self, ask: Callable[[str], str] | None = None, description: str = "reference tile placed by hand"):
-        self._ask = ask or input
+        self._ask = operator_prompt(ask or input)
         self._description = description
 
     @property
@@ -78,7 +97,7 @@ class ManualBoard:
     """An operator mounts the board by hand, prompted on the terminal (``ask`` is ``input`` by default)."""
 
     def __init__(self, ask: Callable[[str], str] | None = None) -> None:
-        self._ask = ask or input
+        self._ask = operator_prompt(ask or input)
 
     @property
     def description(self) -> str:
