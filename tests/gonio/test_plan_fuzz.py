@@ -19,6 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gonio import cli
+from tests.rig.run.test_config_fuzz import key_paths
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 RIGS = sorted(p.name for p in EXAMPLES.glob("rig_*.toml"))
@@ -94,20 +95,9 @@ def _containers(inner: st.SearchStrategy[Any]) -> st.SearchStrategy[Any]:
 values = st.one_of(st.recursive(scalars, _containers, max_leaves=12), long_lists)
 
 
-def _paths(doc: Any, prefix: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
-    out = [prefix] if prefix else []
-    if isinstance(doc, dict):
-        for k, v in doc.items():
-            out += _paths(v, (*prefix, k))
-    elif isinstance(doc, list):
-        for i, v in enumerate(doc[:3]):
-            out += _paths(v, (*prefix, i))
-    return out
-
-
 def _mutate(doc: dict[str, Any], data: st.DataObject) -> dict[str, Any]:
     for _ in range(data.draw(st.integers(1, 3), label="changes")):
-        paths = _paths(doc)
+        paths = key_paths(doc)
         if not paths:
             break
         path = data.draw(st.sampled_from(paths), label="path")

@@ -30,14 +30,15 @@ VALUES: list[Any] = [
 ]  # fmt: skip
 
 
-def _paths(doc: Any, prefix: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
+def key_paths(doc: Any, prefix: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
+    """Every key path of a TOML document (list items: the first three), depth first."""
     out = [prefix] if prefix else []
     if isinstance(doc, dict):
         for k, v in doc.items():
-            out += _paths(v, (*prefix, k))
+            out += key_paths(v, (*prefix, k))
     elif isinstance(doc, list):
         for i, v in enumerate(doc[:3]):
-            out += _paths(v, (*prefix, i))
+            out += key_paths(v, (*prefix, i))
     return out
 
 
@@ -47,7 +48,7 @@ def mutate(doc: dict[str, Any], rng: random.Random) -> dict[str, Any]:
 
     doc = copy.deepcopy(doc)
     for _ in range(rng.randint(1, 3)):
-        paths = _paths(doc)
+        paths = key_paths(doc)
         if not paths:
             break
         path = rng.choice(paths)

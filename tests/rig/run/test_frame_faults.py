@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 
 from acquisition.frame import Frame
-from rig.run.runner import Runner, RunStopped
-from rig.run.session import capture_settings, make_plan, manifest, options_for, reference_settings
+from rig.run.runner import RunStopped
+from rig.run.session import make_plan, manifest, options_for
 from rig.run.store import RunStore
 from simulator.from_config import rig_from
-from tests.run_helpers import FlakyCamera, in_plane_sweep, open_link, sim_rig
+from tests.run_helpers import FlakyCamera, in_plane_sweep, run_outcome, sim_rig
 
 pytestmark = pytest.mark.mitsuba
 
@@ -47,15 +47,7 @@ def _run(tmp_path: Path, light: Callable[[Frame], Frame], dark: Callable[[Frame]
     store = RunStore.create(tmp_path / "run", manifest(rig, sweep, plan, options_for(rig, sweep, False)))
     with rig_from(rig) as sim:
         assert sim.camera is not None
-        runner = Runner(plan, store, open_link(sim, rig), _BrokenCamera(sim.camera, light, dark), sim.clock,
-                        rig.geometry, capture_settings(rig, sweep), reference=reference_settings(rig),
-                        target=sim.reference, options=options_for(rig, sweep, False))  # fmt: skip
-        try:
-            return runner.run()
-        except RunStopped as exc:
-            return exc
-        finally:
-            store.close()
+        return run_outcome(sim, rig, sweep, plan, store, _BrokenCamera(sim.camera, light, dark))
 
 
 def _same(frame: Frame) -> Frame:
