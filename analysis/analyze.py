@@ -2,8 +2,8 @@
 
 The source is loaded into :class:`model.fit.samples.Samples` (analysis/sources.py), the ladder of candidate
 models is fitted and one chosen (analysis/ladder.py), and the :class:`analysis.result.Analysis` this
-produces is all the writers need: the figures (analysis/report_plots.py), the page
-(analysis/report_html.py), ``fit.json`` and the exports (analysis/export.py), all written by
+produces is all the writers need: the figures (analysis/report/plots.py), the page
+(analysis/report/html.py), ``fit.json`` and the exports (analysis/exports/write.py), all written by
 :func:`write_report` here.
 """
 
@@ -20,10 +20,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from acquisition.files.atomic import write_atomic
-from analysis import report_notebook  # noqa: F401  (an Analysis displays itself in Jupyter once this is loaded)
 from analysis.ladder import fit_ladder
-from analysis.report_params import covariance_json, parameter_status
-from analysis.report_truth import compare_truth
+from analysis.parameters import covariance_json, parameter_status
+from analysis.report import notebook  # noqa: F401  (an Analysis displays itself in Jupyter once this is loaded)
+from analysis.report.truth import compare_truth
 from analysis.result import Analysis, AnalysisError, Log, Reference
 from analysis.sources import (
     DEFAULT_MERL_SAMPLES,
@@ -42,11 +42,11 @@ from model.fit.select import default_ladder
 from model.fit.solve import LOSSES
 from model.fit.spec import FitSpec
 from model.serialize import to_json_dict
-from rig.run.store import MANIFEST
+from rig.run.storage.store import MANIFEST
 
 if TYPE_CHECKING:
     from analysis.figure_pool import Standby
-    from analysis.report_files import Figures
+    from analysis.report.files import Figures
 
 
 def load_and_fit(
@@ -197,14 +197,14 @@ def write_report(
 
     def export() -> tuple[dict[str, Path], dict[str, str]]:
         # Imported only here: it loads Mitsuba, whose threads would keep figures from being drawn in forked workers.
-        from analysis.export import export_material, export_notes
+        from analysis.exports.write import export_material, export_notes
 
         paths = export_material(chosen, out / "export", merl=merl, gonio_plugin=mitsuba_plugin,
                                 stock=mitsuba_stock)  # fmt: skip
         return paths, export_notes(paths)
 
     def figures_of() -> Figures:
-        from analysis.report_plots import write_figures
+        from analysis.report.plots import write_figures
 
         return write_figures(a, out / "figures", y_scale=y_scale, svg=svg, progress=progress, jobs=jobs)
 
@@ -225,7 +225,7 @@ def write_report(
             exports, notes = exporting.result()  # here and now, after the figures, when it was not forked
     for f in figures.files:
         say(f"wrote {f.png}")
-    from analysis.report_html import write_html
+    from analysis.report.html import write_html
 
     return write_html(a, figures, out / "index.html", exports, notes=notes)
 

@@ -1,7 +1,7 @@
 """What one analysis produced: the source it read, the samples, the fitted ladder and its choice.
 
-:class:`Analysis` is the one result type the report's figures (analysis/report_plots.py), its page
-(analysis/report_html.py) and ``fit.json`` (analysis/analyze.py) read; it lives below all of them, so
+:class:`Analysis` is the one result type the report's figures (analysis/report/plots.py), its page
+(analysis/report/html.py) and ``fit.json`` (analysis/analyze.py) read; it lives below all of them, so
 none of them imports another to get its data.
 """
 
@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from analysis.report_params import parameter_status, undetermined_text
+from analysis.parameters import parameter_status, undetermined_text
 from model.base import BRDF
 from model.fit.samples import Samples
 from model.fit.select import Candidate, Selection
@@ -29,7 +29,7 @@ Log = Callable[[str], None]
 P_AT_NOISE = 0.05
 #: Above this p-value chi2 is suspiciously small: the std errors are probably overestimated.
 P_TOO_GOOD = 0.999
-#: How an Analysis renders in Jupyter; analysis.report_notebook registers its renderer here (the page's pieces sit
+#: How an Analysis renders in Jupyter; analysis.report.notebook registers its renderer here (the page's pieces sit
 #: above this module, so they cannot be imported from it).
 HTML_REPR: list[Callable[[Any], str]] = []
 

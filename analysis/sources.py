@@ -1,7 +1,7 @@
 """Sources of an analysis: a run directory, an adaptive sweep, a samples table or a MERL file, as fit samples.
 
 A finished run is read from its ``samples.csv``; a run that stopped (or is still running) from its journal
-through the same ``rig.run.table.build_rows`` the runner uses at the end, so an unfinished run is analysed
+through the same ``rig.run.tables.samples.build_rows`` the runner uses at the end, so an unfinished run is analysed
 exactly as far as it got, with a warning saying so; an adaptive sweep's directory (``adaptive.json``) from
 its merged ``samples.csv``, or, unfinished, from every round's run read as above; a samples table
 (``samples.csv`` or ``samples.parquet``, e.g. an adaptive sweep's) on its own, or through the run or sweep
@@ -20,13 +20,13 @@ from typing import Any
 from analysis.result import AnalysisError, Log, Reference, SourceSummary
 from model.fit.samples import FitError, Samples
 from model.merl import SHAPE, MerlFormatError, MerlTable, read_merl
-from rig.run.adaptive_state import AdaptiveStateError, is_adaptive, read_state, rig_of
-from rig.run.config import material_from
-from rig.run.config_schema import run_metadata
-from rig.run.journal import check_records
+from rig.run.adaptive.state import AdaptiveStateError, is_adaptive, read_state, rig_of
+from rig.run.config.files import material_from
+from rig.run.config.schema import run_metadata
 from rig.run.session import configs_of, reference_settings
-from rig.run.store import JOURNAL, MANIFEST, RunStore, RunStoreError
-from rig.run.table import build_rows
+from rig.run.storage.journal import check_records
+from rig.run.storage.store import JOURNAL, MANIFEST, RunStore, RunStoreError
+from rig.run.tables.samples import build_rows
 
 DEFAULT_MERL_SAMPLES = 20_000
 

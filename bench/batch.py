@@ -65,8 +65,8 @@ def materials(n: int) -> list[dict[str, Any]]:
 
 def make_run(material: dict[str, Any], seed: int, out: str) -> str:
     """One finished run of ``material`` on the simulated rig at ``out`` (a task: runs on a worker)."""
-    from rig.run.config import parse, rig_config, sweep_config
-    from rig.run.config_schema import RigFile, SweepFile
+    from rig.run.config.files import parse, rig_config, sweep_config
+    from rig.run.config.schema import RigFile, SweepFile
     from rig.run.session import start_run
 
     rig = rig_config(parse({"name": "bench rig", "simulation": {"material": material, "seed": seed},

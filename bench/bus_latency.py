@@ -38,7 +38,7 @@ from rig.instrument.geometry import RigGeometry
 from rig.instrument.links.dynamixel import DynamixelLink, DynamixelOptions
 from rig.instrument.links.dynamixel_table import X_SERIES
 from rig.instrument.links.grbl import GrblLink
-from rig.run.config import default_axes
+from rig.run.config.files import default_axes
 from simulator.dynamixel import open_virtual_bus
 from simulator.grbl.server import open_virtual_grbl
 

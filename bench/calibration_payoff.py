@@ -32,9 +32,9 @@ from model.fit.design import brdf_error, error_pairs
 from model.fit.samples import Samples
 from model.fit.spec import ggx_conductor, lambert_ggx
 from rig.alignment.procedure import calibrate_geometry
-from rig.run.adaptive import measure_points
-from rig.run.config import RigConfig, material_from, parse, rig_config
-from rig.run.config_schema import RigFile
+from rig.run.adaptive.sweep import measure_points
+from rig.run.config.files import RigConfig, material_from, parse, rig_config
+from rig.run.config.schema import RigFile
 
 GLOSSY = {"model": "CookTorrance", "alpha": 0.05, "distribution": "ggx", "fresnel": "conductor",
           "eta": [0.18, 0.42, 1.37], "k": [3.42, 2.35, 1.77]}  # fmt: skip

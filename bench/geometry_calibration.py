@@ -37,7 +37,7 @@ import numpy as np
 
 from bench._common import load_average, machine_description
 from rig.alignment.procedure import calibrate_geometry
-from rig.run.config import load_rig
+from rig.run.config.files import load_rig
 from tests.rehearsal.harness import Operator, Rehearsal
 
 SCALARS = ("light_zero_deg", "camera_zero_deg", "tilt_zero_deg", "roll_zero_deg", "sample_tilt_deg",

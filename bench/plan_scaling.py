@@ -14,8 +14,8 @@ import time
 import numpy as np
 
 from rig.instrument.geometry import RigGeometry
-from rig.run.config import default_axes
-from rig.run.plan import plan_sweep
+from rig.run.config.files import default_axes
+from rig.run.planning.plan import plan_sweep
 
 
 def directions(n: int, seed: int = 0) -> np.ndarray:

@@ -2,7 +2,7 @@
 
 1. Rig time (the simulated clock at the end of the run) against the lower bound for the same ordered
    plan: each move's time with all axes in parallel under the speed and acceleration the servos are
-   programmed with (the axes' limits rounded to register units; ``rig.run.plan.move_time_s``, the anchor)
+   programmed with (the axes' limits rounded to register units; ``rig.run.planning.plan.move_time_s``, the anchor)
    plus every exposure. Goal: within 10 %. The excess is the
    in-position polling (a move is seen to end at the next poll) and the servos' tolerance band.
 2. The controller's own wall time per point, excluding motion and exposure: wall time of the run minus
@@ -36,13 +36,13 @@ import numpy as np
 
 from bench._common import format_table, load_average, machine_description, markdown_table, write_section
 from rig.instrument.links.dynamixel_table import X_SERIES
-from rig.run.config import parse, rig_config, sweep_config
-from rig.run.config_schema import RigFile, SweepFile
-from rig.run.hardware import dynamixel_options
-from rig.run.plan import move_time_s
-from rig.run.runner import Runner, RunOptions
+from rig.run.backends.hardware import dynamixel_options
+from rig.run.config.files import parse, rig_config, sweep_config
+from rig.run.config.schema import RigFile, SweepFile
+from rig.run.measuring.runner import Runner, RunOptions
+from rig.run.planning.plan import move_time_s
 from rig.run.session import capture_settings, make_plan, manifest
-from rig.run.store import RunStore
+from rig.run.storage.store import RunStore
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 #: The controller's own CPU per point (ms): what it may cost beside the motion and the exposures.
@@ -50,7 +50,7 @@ GOAL_MS = 5.0
 
 
 class PlannerTimer:
-    """Times every ``plan_exposure`` call the runner makes (installed on ``rig.run.measure`` for a run)."""
+    """Times every ``plan_exposure`` call the runner makes (installed on ``rig.run.measuring.measure`` for a run)."""
 
     def __init__(self) -> None:
         self.seconds = 0.0
@@ -58,7 +58,7 @@ class PlannerTimer:
         self.calls = 0
 
     def __enter__(self) -> PlannerTimer:
-        import rig.run.measure as measure
+        import rig.run.measuring.measure as measure
 
         self._module, self._original = measure, measure.plan_exposure
 
@@ -80,14 +80,17 @@ class PlannerTimer:
 
 #: Where the controller's thread spends its CPU, by what the runner calls (none of these calls another).
 PARTS = {
-    "exposure plan": [("rig.run.measure", "plan_exposure")],
-    "HDR merge": [("rig.run.measure", "merge_linear")],
-    "ROI reading and level": [("rig.run.measure", "reduce_hdr_roi"), ("rig.run.measure", "level_of")],
-    "motion guard's path check": [("rig.run.plan_paths", "ArmPaths.legs")],
-    "forward kinematics": [("rig.run.runner", "aligned_forward")],
-    "direction covariance": [("rig.run.runner", "direction_covariances")],
-    "journal (fsynced)": [("rig.run.store", "RunStore.append")],
-    "table at the end": [("rig.run.runner", "Runner._finish")],
+    "exposure plan": [("rig.run.measuring.measure", "plan_exposure")],
+    "HDR merge": [("rig.run.measuring.measure", "merge_linear")],
+    "ROI reading and level": [
+        ("rig.run.measuring.measure", "reduce_hdr_roi"),
+        ("rig.run.measuring.measure", "level_of"),
+    ],
+    "motion guard's path check": [("rig.run.planning.paths", "ArmPaths.legs")],
+    "forward kinematics": [("rig.run.measuring.runner", "aligned_forward")],
+    "direction covariance": [("rig.run.measuring.runner", "direction_covariances")],
+    "journal (fsynced)": [("rig.run.storage.store", "RunStore.append")],
+    "table at the end": [("rig.run.measuring.runner", "Runner._finish")],
 }
 
 

@@ -11,7 +11,7 @@ sweep; the tables show the mean over seeds. One seed alone is a coin toss at the
 
 Designs: regular grids in (theta_i, theta_o, phi_o), from sparse (30) to dense (~1000, the anchor);
 Rusinkiewicz half/difference grids with theta_h spaced quadratically (dense at the specular peak); and
-the adaptive sweep of ``rig.run.adaptive`` (20 space-filling captures, then rounds of 10 chosen where the
+the adaptive sweep of ``rig.run.adaptive.sweep`` (20 space-filling captures, then rounds of 10 chosen where the
 current fit's expected BRDF error falls most), scored after every round, at capture SNRs of 100, 300 and
 500. Goal: the adaptive sweep reaches the dense grid's error with at most 100 captures.
 

@@ -15,8 +15,8 @@ import numpy as np
 from acquisition.exposure.spec import CameraTiming
 from model.geometry import degrees_to_vector
 from rig.run.calibrate import CalibrationSettings, calibrate_camera, write_calibration
-from rig.run.config import load_rig, material_from, parse, rig_config, sweep_config
-from rig.run.config_schema import RigFile, SweepFile
+from rig.run.config.files import load_rig, material_from, parse, rig_config, sweep_config
+from rig.run.config.schema import RigFile, SweepFile
 from rig.run.session import instruments, start_run
 
 HERE = Path(__file__).parent

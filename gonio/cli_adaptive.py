@@ -49,8 +49,8 @@ def _adaptive(args: argparse.Namespace) -> int:
     from tqdm.auto import tqdm
 
     from analysis.ladder import parse_models
-    from rig.run.adaptive import AdaptiveSettings, Round, run_adaptive
-    from rig.run.runner import RunStopped
+    from rig.run.adaptive.sweep import AdaptiveSettings, Round, run_adaptive
+    from rig.run.measuring.runner import RunStopped
 
     if args.resume:
         if args.out or args.rig:

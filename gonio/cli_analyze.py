@@ -74,8 +74,8 @@ def _previous(fit: Path) -> str:
 
 
 def _figure_modules() -> None:
-    import analysis.report_html
-    import analysis.report_plots  # noqa: F401  (matplotlib and every figure's module)
+    import analysis.report.html
+    import analysis.report.plots  # noqa: F401  (matplotlib and every figure's module)
 
 
 def _export_modules() -> None:
@@ -84,7 +84,7 @@ def _export_modules() -> None:
     # spends after the fit); an export that cannot load Mitsuba fails the same way when it runs, so nothing is
     # raised here.
     with contextlib.suppress(Exception):
-        from analysis.export import prepare_exports  # Mitsuba, drjit
+        from analysis.exports.write import prepare_exports  # Mitsuba, drjit
         from model.mitsuba.variant import pick_variant
 
         pick_variant()

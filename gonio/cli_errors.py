@@ -58,11 +58,11 @@ def _input_errors() -> tuple[type[BaseException], ...]:
     from rig.instrument.axis import AxisLimitError
     from rig.instrument.geometry import GeometryError
     from rig.instrument.kinematics_types import UnreachableError
-    from rig.run.adaptive_state import AdaptiveStateError
-    from rig.run.config import ConfigError
-    from rig.run.reference import OperatorAbsent
+    from rig.run.adaptive.state import AdaptiveStateError
+    from rig.run.backends.reference import OperatorAbsent
+    from rig.run.config.files import ConfigError
     from rig.run.registry import BackendError
-    from rig.run.store import RunStoreError
+    from rig.run.storage.store import RunStoreError
 
     return (CliError, ConfigError, RunStoreError, AnalysisError, AxisLimitError, GeometryError, UnreachableError,
             ParameterError, ModelFormatError, MerlFormatError, FitError, FlatFieldError, CalibrationError,
@@ -71,7 +71,7 @@ def _input_errors() -> tuple[type[BaseException], ...]:
 
 def _camera_errors() -> tuple[type[BaseException], ...]:
     from acquisition.cameras import CameraError
-    from rig.run.bounded_camera import CameraError as BoundedCameraError
+    from rig.run.backends.bounded_camera import CameraError as BoundedCameraError
 
     return (CameraError, BoundedCameraError)
 

@@ -23,14 +23,14 @@ from gonio.cli_errors import EXIT_BAD_INPUT as EXIT_BAD_INPUT
 from gonio.cli_errors import EXIT_CAMERA, EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_OK
 
 if TYPE_CHECKING:
-    from rig.run.config import RigConfig
+    from rig.run.config.files import RigConfig
 
 
 def _rig(path: str | None) -> RigConfig:
     # Imported here, not at the top: the configuration's schema (pydantic) costs most of a second, and
     # `gonio --help` or `gonio analyze` need none of it.
-    from rig.run.config import load_rig, rig_config
-    from rig.run.config_schema import RigFile
+    from rig.run.config.files import load_rig, rig_config
+    from rig.run.config.schema import RigFile
 
     return load_rig(path) if path else rig_config(RigFile(), "<built-in simulated rig>")
 
@@ -50,7 +50,7 @@ def _sigterm_as_interrupt() -> Iterator[None]:
 
 
 def _stopped(exc: Exception) -> int:
-    from rig.run.runner import RunStopped
+    from rig.run.measuring.runner import RunStopped
 
     if isinstance(exc, RunStopped):
         print(f"gonio: {exc}", file=sys.stderr)
@@ -59,7 +59,7 @@ def _stopped(exc: Exception) -> int:
 
 
 def _report(summary: object) -> None:
-    from rig.run.runner import RunSummary
+    from rig.run.measuring.runner import RunSummary
 
     assert isinstance(summary, RunSummary)
     print(f"measured {summary.measured} points ({summary.already} from before), {summary.references} reference "
@@ -73,8 +73,8 @@ def _default_out(sweep: str) -> Path:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from rig.run.config import load_sweep
-    from rig.run.runner import RunStopped
+    from rig.run.config.files import load_sweep
+    from rig.run.measuring.runner import RunStopped
     from rig.run.session import start_run
 
     rig, sweep = _rig(args.rig), load_sweep(args.sweep)
@@ -93,8 +93,8 @@ def _run(args: argparse.Namespace) -> int:
 def resume_adaptive_dir(directory: str) -> int:
     """Continue the interrupted adaptive sweep in ``directory`` (``gonio adaptive --resume``, ``gonio resume``)."""
     from analysis.ladder import parse_models
-    from rig.run.adaptive import resume_adaptive
-    from rig.run.runner import RunStopped
+    from rig.run.adaptive.sweep import resume_adaptive
+    from rig.run.measuring.runner import RunStopped
 
     print(f"resuming the adaptive sweep in {directory}", file=sys.stderr)
     try:
@@ -114,8 +114,8 @@ def _summary(result: Any) -> int:
 
 
 def _resume(args: argparse.Namespace) -> int:
-    from rig.run.adaptive_state import is_adaptive
-    from rig.run.runner import RunStopped
+    from rig.run.adaptive.state import is_adaptive
+    from rig.run.measuring.runner import RunStopped
     from rig.run.session import RunFinished, resume_run
 
     if is_adaptive(args.run):  # an adaptive sweep's directory: its rounds, not one run
@@ -133,7 +133,7 @@ def _resume(args: argparse.Namespace) -> int:
 
 
 def _plan(args: argparse.Namespace) -> int:
-    from rig.run.config import load_sweep
+    from rig.run.config.files import load_sweep
     from rig.run.session import make_plan
 
     rig, sweep = _rig(args.rig), load_sweep(args.sweep)

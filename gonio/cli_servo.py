@@ -103,7 +103,7 @@ def _status(args: argparse.Namespace) -> int:
 def _move(args: argparse.Namespace) -> int:
     from rig.instrument.clock import SystemClock
     from rig.instrument.links.dynamixel import DynamixelLink
-    from rig.run.config import load_rig
+    from rig.run.config.files import load_rig
 
     rig = load_rig(args.rig)
     link_cfg = rig.file.link

@@ -150,8 +150,8 @@ def _rig(args: argparse.Namespace) -> int:
     import threading
     from pathlib import Path
 
-    from rig.run.config import load_rig, rig_config
-    from rig.run.config_schema import RigFile
+    from rig.run.config.files import load_rig, rig_config
+    from rig.run.config.schema import RigFile
     from simulator import rehearsal as r
 
     cfg = load_rig(args.rig) if args.rig else rig_config(RigFile(), "<built-in simulated rig>")
@@ -270,8 +270,8 @@ def _merl(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from model.merl import MerlTable, write_merl
-    from rig.run.config import load_rig, material_from, parse, rig_config
-    from rig.run.config_schema import RigFile
+    from rig.run.config.files import load_rig, material_from, parse, rig_config
+    from rig.run.config.schema import RigFile
 
     cfg = load_rig(args.rig) if args.rig else rig_config(parse({"simulation": {"material": PAINT}}, RigFile))
     material = material_from(cfg)

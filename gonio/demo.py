@@ -17,8 +17,8 @@ import numpy as np
 
 from gonio.cli_errors import CliError
 from model.geometry import degrees_to_vector
-from rig.run.config import RigConfig, material_from, parse, rig_config, sweep_config
-from rig.run.config_schema import RigFile, SweepFile
+from rig.run.config.files import RigConfig, material_from, parse, rig_config, sweep_config
+from rig.run.config.schema import RigFile, SweepFile
 
 GOLD = {"model": "CookTorrance", "alpha": 0.2, "distribution": "ggx", "fresnel": "conductor",
         "eta": [0.18, 0.42, 1.37], "k": [3.42, 2.35, 1.77]}  # fmt: skip

@@ -44,8 +44,8 @@ THETA_I_DEG = (0.0, 30.0, 60.0)
 
 def in_plane_slice(brdf: BRDF, theta_i_deg: float, theta_o_deg: np.ndarray) -> np.ndarray:
     """f_r in 1/sr along the plane of incidence; signed theta_o > 0 is forward of the light (the mirror side),
-    as in the sweep files and the analysis report (analysis.report_plots.in_plane_directions)."""
-    from analysis.report_plots import in_plane_directions
+    as in the sweep files and the analysis report (analysis.report.plots.in_plane_directions)."""
+    from analysis.report.plots import in_plane_directions
 
     wi, wo = in_plane_directions(theta_i_deg, theta_o_deg)
     f = np.asarray(brdf.eval(wi, wo), dtype=float)

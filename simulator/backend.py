@@ -17,9 +17,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from rig.run.backends import Instruments, RigBackend, StartPose
-from rig.run.config import RigConfig
-from rig.run.hardware import dynamixel_options
+from rig.run.backends.base import Instruments, RigBackend, StartPose
+from rig.run.backends.hardware import dynamixel_options
+from rig.run.config.files import RigConfig
 from rig.run.registry import BackendTraits
 
 

@@ -7,8 +7,8 @@ from collections.abc import Mapping
 
 from acquisition.noise import SensorNoise
 from rig.instrument.alignment import Alignment
-from rig.run.config import ConfigError, RigConfig, material_from
-from rig.run.config_schema import Misalignment
+from rig.run.config.files import ConfigError, RigConfig, material_from
+from rig.run.config.schema import Misalignment
 from simulator.camera.pixels import PixelResponse
 from simulator.render.spec import CameraSpec, LightSpec
 from simulator.rig import SimRigSpec, SimulatedRig

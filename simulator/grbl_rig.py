@@ -21,7 +21,7 @@ from typing import Any
 
 from rig.instrument.axis import Axis
 from rig.instrument.links.grbl import AXIS_LETTERS, GrblLink
-from rig.run.config import GRBL_PULLOFF_DEG, default_grbl_axes
+from rig.run.config.files import GRBL_PULLOFF_DEG, default_grbl_axes
 from simulator.grbl.controller import VirtualGrbl
 from simulator.grbl.server import GrblPtyServer
 from simulator.rig import SimRigSpec, SimulatedRig, SimulatedRigError

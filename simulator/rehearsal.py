@@ -39,7 +39,7 @@ import numpy.typing as npt
 from acquisition.board import ChArUcoBoard
 from acquisition.cameras.shot_request import take_requests
 from acquisition.frame import Frame
-from rig.run.config import RigConfig
+from rig.run.config.files import RigConfig
 from simulator.camera.simulated import DNG_MIN_SIDE, SensorPatch, SimulatedCamera, window_around
 from simulator.from_config import rig_from, spec_from
 from simulator.render.spec import CameraSpec

@@ -35,7 +35,7 @@ from rig.instrument.clock import Clock, ManualClock, ScaledClock
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints, world_pose
 from rig.instrument.links.dynamixel import DynamixelLink, DynamixelOptions
-from rig.run.config import default_axes
+from rig.run.config.files import default_axes
 from simulator.camera.pixels import PixelResponse
 from simulator.camera.simulated import CameraOptics, SensorPatch, SimulatedCamera
 from simulator.camera.view import SimulatedFlatSource, roi_patch
@@ -78,7 +78,7 @@ class SimRigSpec:
         seed, the servos' physical positions and the material in view, so it does not depend on what the
         rig did before (a resumed run sees what an uninterrupted one saw).
     reference_albedo:
-        Albedo of the Lambertian reference tile that ``rig.run.reference`` swaps in for the sample.
+        Albedo of the Lambertian reference tile that ``rig.run.backends.reference`` swaps in for the sample.
     light_drift_per_s:
         Relative change of the light's intensity per second of rig time (0: a stable lamp), for drift tests.
     misalignment:

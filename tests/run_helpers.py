@@ -12,10 +12,10 @@ import numpy as np
 from acquisition.frame import Camera, ExposureSettings, Frame
 from model.geometry import degrees_to_vector
 from rig.instrument.links.base import MotionLink
-from rig.run.config import RigConfig, SweepConfig, material_from, parse, rig_config, sweep_config
-from rig.run.config_schema import RigFile, SweepFile
-from rig.run.hardware import dynamixel_options
-from rig.run.store import RunStore
+from rig.run.backends.hardware import dynamixel_options
+from rig.run.config.files import RigConfig, SweepConfig, material_from, parse, rig_config, sweep_config
+from rig.run.config.schema import RigFile, SweepFile
+from rig.run.storage.store import RunStore
 from simulator.grbl_rig import SimulatedGrblRig
 from simulator.rig import SimulatedRig
 
@@ -125,7 +125,7 @@ def run_outcome(sim: SimulatedRig, rig: RigConfig, sweep: SweepConfig, plan: Any
                 link: MotionLink | None = None) -> Any:
     """Run ``plan`` on ``sim`` through ``camera`` (and ``link``, else one opened on it): its summary, or the
     RunStopped that ended it; the store is closed either way."""
-    from rig.run.runner import Runner, RunStopped
+    from rig.run.measuring.runner import Runner, RunStopped
     from rig.run.session import capture_settings, options_for, reference_settings
 
     runner = Runner(plan, store, link or open_link(sim, rig), camera, sim.clock, rig.geometry,

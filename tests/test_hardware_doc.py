@@ -148,7 +148,7 @@ def test_the_guide_has_commands_for_each_step():
 
 
 def _check_files(args: argparse.Namespace) -> None:
-    from rig.run.config import load_rig, load_sweep
+    from rig.run.config.files import load_rig, load_sweep
 
     if isinstance(getattr(args, "sweep", None), str):
         load_sweep(ROOT / args.sweep)  # ConfigError names the file and key if the guide's file is wrong
@@ -362,7 +362,7 @@ def _check(key: str, done: Result, work: Path) -> None:
         listed = [int(w) for w in key.split()[key.split().index("--port") + 2 :]]
         assert all(re.search(rf"id\s+{i}: position", out) for i in listed), out
     elif " servo move " in key:
-        from rig.run.config import load_rig
+        from rig.run.config.files import load_rig
 
         joint, angle = key.split()[-2:]
         rig = load_rig(work / key.split()[key.split().index("--rig") + 1])
@@ -493,8 +493,8 @@ def test_the_udev_rule_sets_the_timer_gonio_recommends_where_gonio_reads_it():
 
 
 def test_the_toml_fragments_are_valid_rig_file_tables():
-    from rig.run.config import parse
-    from rig.run.config_schema import RigFile
+    from rig.run.config.files import parse
+    from rig.run.config.schema import RigFile
 
     fragments = _blocks("toml")
     assert fragments

@@ -61,7 +61,7 @@ HOW: dict[str, tuple[str, str]] = {
     ".venv/bin/gonio adaptive --rig examples/rig_simulated.toml --out runs/gold-adaptive --budget 100":
         ("dry", "100 captures in 9 rounds, ~35 s; tests/gonio/test_cli.py runs a budget of 12"),
     ".venv/bin/gonio adaptive --resume runs/gold-adaptive":
-        ("dry", "continues the adaptive sweep above, which is not run; tests/rig/run/test_adaptive.py resumes one"),
+        ("dry", "continues the adaptive sweep above, which is not run; tests/rig/run/adaptive/test_adaptive.py resumes one"),
     ".venv/bin/gonio analyze runs/gold-adaptive":
         ("never", "analyses the adaptive sweep above, which is not run (dry), so there is nothing to check it on; "
                   "tests/analysis/test_sources.py analyses one"),
@@ -139,8 +139,8 @@ def test_the_readme_links_only_inside_the_repository():
 
 
 def test_the_readme_toml_fragments_are_valid_rig_file_tables():
-    from rig.run.config import parse
-    from rig.run.config_schema import RigFile
+    from rig.run.config.files import parse
+    from rig.run.config.schema import RigFile
 
     fragments = _blocks(("toml",))
     assert fragments
@@ -208,7 +208,7 @@ def _serve(command: str, cwd: Path) -> None:
 
 def _inputs(args: Any, cwd: Path) -> None:
     """The files a parsed gonio command reads must be where the README's earlier commands left them."""
-    from rig.run.config import load_rig, load_sweep
+    from rig.run.config.files import load_rig, load_sweep
 
     def listed(name: str) -> list[str]:
         value = getattr(args, name, None)

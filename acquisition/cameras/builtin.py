@@ -1,7 +1,7 @@
 """gonio's own camera backends as registered in ``gonio.cameras``: tethered folder, OpenCV, gphoto2, GenICam.
 
 Each imports its library when a camera is opened, not when the registry is read. ``keys`` lists the
-``[camera]`` keys each reads (validated in ``rig.run.config_schema.Camera``); a key left out of a rig file
+``[camera]`` keys each reads (validated in ``rig.run.config.schema.Camera``); a key left out of a rig file
 arrives as None and the backend's own default applies.
 """
 

@@ -4,7 +4,7 @@ A camera backend is registered as a Python entry point in the group ``gonio.came
 :class:`CameraBackend`; gonio's own (``folder``, ``opencv``) are in :mod:`acquisition.cameras.builtin`,
 declared in gonio's ``pyproject.toml``. A lab adds a camera of its own as a separate package the same
 way, without editing gonio (docs/architecture.md). The simulated rig's rendered camera is not among
-them: it comes with the simulated rig backend (``rig.run.backends``), since it watches the virtual servos.
+them: it comes with the simulated rig backend (``rig.run.backends.base``), since it watches the virtual servos.
 """
 
 from __future__ import annotations

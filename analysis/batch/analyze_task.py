@@ -20,11 +20,11 @@ from typing import Any
 from analysis.analyze import fit_json, load_and_fit, write_report
 from analysis.batch.inputs import AnalyzeSettings, BatchInput
 from analysis.batch.records import staged_dir, utc_now, worker_name, write_record
-from analysis.export import FILES
+from analysis.exports.write import FILES
 from analysis.ladder import parse_models
 from analysis.result import Analysis
-from rig.run.store import MANIFEST
-from rig.run.table_parquet import PARQUET_NAME, write_beside
+from rig.run.storage.store import MANIFEST
+from rig.run.tables.parquet import PARQUET_NAME, write_beside
 
 #: A test's hook: called with (key, stage) at "started" and at "written" (outputs staged, not yet in place).
 Probe = Callable[[str, str], None]

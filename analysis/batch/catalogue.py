@@ -4,7 +4,7 @@ A row holds the input and whether it was analysed (``status`` done, failed with 
 the batch stopped before it), the chosen model with its parameters and standard errors (maps from parameter
 name to value) and its JSON form, the goodness of fit, the run's metadata, the paths of its outputs (relative
 to the catalogue's directory, so a batch directory can be moved or shared whole) and what the task cost.
-Every column's unit and meaning are in the file's metadata (rig.run.table_parquet), and the batch's settings
+Every column's unit and meaning are in the file's metadata (rig.run.tables.parquet), and the batch's settings
 under ``gonio.batch``. The schema is fixed, so a catalogue whose inputs all failed still reads with its types.
 """
 
@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from analysis.batch.inputs import AnalyzeSettings, BatchInput
-from rig.run.table_parquet import Column, write_parquet
+from rig.run.tables.parquet import Column, write_parquet
 
 CATALOGUE = "catalogue.parquet"
 CATALOGUE_FORMAT = "gonio-catalogue/1"
@@ -32,7 +32,7 @@ _SOURCE_FIELDS = {
     "sweep_name": ("str", "", "the sweep file's name"),
     "material": ("str", "", "the simulated rig's true material, for a simulated run"),
 }
-#: Output columns: the column, the output's kind in the task record (analysis.export.FILES), what it is.
+#: Output columns: the column, the output's kind in the task record (analysis.exports.write.FILES), what it is.
 _OUTPUTS = {
     "report": ("report", "the report page (index.html)"), "fit_json": ("fit_json", "fit.json: every number of it"),
     "material_json": ("material", "the chosen model as gonio JSON"),

@@ -23,7 +23,7 @@ from typing import Any
 
 from analysis.result import AnalysisError
 from model.version import gonio_version
-from rig.run.store import JOURNAL, MANIFEST, STATUS
+from rig.run.storage.store import JOURNAL, MANIFEST, STATUS
 
 #: The files of a run directory that an analysis reads (samples.parquet is derived, and may be written by a batch).
 RUN_FILES = (MANIFEST, JOURNAL, STATUS, "samples.csv")

@@ -49,7 +49,7 @@ from analysis.batch.tradeoff import (
 )
 from analysis.result import AnalysisError, Log
 from model.version import gonio_version
-from rig.run.table_parquet import Column, write_parquet
+from rig.run.tables.parquet import Column, write_parquet
 
 _SLUG = re.compile(r"[^A-Za-z0-9_.\-]+")
 
@@ -108,7 +108,7 @@ def file_cells(rigs: Sequence[str], sweeps: Sequence[str], seeds: Iterable[int],
                max_theta_deg: float = MAX_THETA) -> list[Cell]:  # fmt: skip
     """The cells of a user's study: every sweep file on every rig file (simulated rigs) for every seed."""
     from analysis.ladder import parse_models
-    from rig.run.config import load_rig, load_sweep
+    from rig.run.config.files import load_rig, load_sweep
 
     if models:
         parse_models(models)
@@ -158,8 +158,8 @@ def _outcomes(cell: Cell, work: Path) -> list[Outcome]:
     from model.fit.design import error_pairs
     from model.fit.samples import Samples
     from model.fit.solve import fit
-    from rig.run.adaptive import AdaptiveSettings, Round, measure_points, replace_table, run_adaptive
-    from rig.run.config import load_rig, load_sweep, material_from
+    from rig.run.adaptive.sweep import AdaptiveSettings, Round, measure_points, replace_table, run_adaptive
+    from rig.run.config.files import load_rig, load_sweep, material_from
 
     pairs = error_pairs(4000, max_theta_deg=cell.max_theta_deg)
     if cell.kind == "files":

@@ -2,7 +2,7 @@
 
 Three known materials on the simulated rig (a rough metal, a glossy plastic, a matte diffuse), each fitted
 with its own model family; designs are regular grids in (theta_i, theta_o, phi_o), Rusinkiewicz
-half/difference grids and the adaptive sweep of ``rig.run.adaptive`` at three capture SNRs
+half/difference grids and the adaptive sweep of ``rig.run.adaptive.sweep`` at three capture SNRs
 (analysis/batch/study.py runs each as a task, analysis/batch/study_report.py tabulates and draws them).
 
 Every design is isotropic (phi_i = 0, phi_o in [0, 180]) and keeps both zeniths at or below ``MAX_THETA``,
@@ -23,9 +23,9 @@ import numpy.typing as npt
 
 from model.fit.spec import LAMBERT, FitSpec, ggx_conductor, lambert_ggx
 from rig.instrument.kinematics import solve_degrees
-from rig.run.config import RigConfig, parse, rig_config
-from rig.run.config_schema import RigFile
-from rig.run.sweeps import half_diff_to_directions, normalise, unique_rows
+from rig.run.config.files import RigConfig, parse, rig_config
+from rig.run.config.schema import RigFile
+from rig.run.config.sweeps import half_diff_to_directions, normalise, unique_rows
 
 FloatArray = npt.NDArray[np.float64]
 MAX_THETA = 70.0

@@ -1,7 +1,7 @@
 """BRDF samples to fit: directions, values per channel, their standard errors and lower-bound flags.
 
 ``Samples`` is what :func:`model.fit.fit` consumes. It reads a run's table (angles in degrees, the
-column names of rig/run/table.py) or subsamples a MERL table. Problems with the data that would make a fit
+column names of rig/run/tables/samples.py) or subsamples a MERL table. Problems with the data that would make a fit
 silently wrong raise :class:`FitError` naming the sample; problems a fit can work around (rows without
 a value, directions below the horizon) drop the rows and leave a note that the fit repeats as a warning.
 """
@@ -43,7 +43,7 @@ def _flag(v: Any) -> bool:
 
 
 def _direction_cov(rows: Sequence[Mapping[str, Any]], source: str) -> Array | None:
-    """The rows' ``direction_cov`` (a JSON 4 x 4 each, see rig/run/table.py), None unless every row has one."""
+    """The rows' ``direction_cov`` (a JSON 4 x 4 each, see rig/run/tables/samples.py), None unless every row has one."""
     cells = [r.get("direction_cov") for r in rows]
     if any(c is None or (isinstance(c, str) and not c.strip()) for c in cells):
         return None
@@ -184,7 +184,7 @@ class Samples:
     def from_table_rows(
         cls, rows: Sequence[Mapping[str, Any]], source: str = "", *, errors: str = "total"
     ) -> Samples:
-        """Samples from a run table's rows (rig/run/table.py columns, degrees; strings as read from CSV accepted).
+        """Samples from a run table's rows (rig/run/tables/samples.py columns, degrees; CSV strings accepted).
 
         ``errors``: "total" takes ``brdf_se_*`` (the point's reading, the references' and the tile albedo's
         errors); "point" takes the point's own reading error only (``reading_se / reading`` times the BRDF);
@@ -230,7 +230,7 @@ class Samples:
 
     @classmethod
     def from_csv(cls, path: str | os.PathLike[str]) -> Samples:
-        """Samples from a run's samples.csv (see rig/run/table.py for the columns)."""
+        """Samples from a run's samples.csv (see rig/run/tables/samples.py for the columns)."""
         with open(path, encoding="utf-8", newline="") as fh:
             rows = list(csv.DictReader(fh))
         return cls.from_table_rows(rows, source=str(path))

@@ -2,7 +2,7 @@
 
 The first tabulation and the first evaluations of a BSDF in a process cost about 30 ms of CPU more than later ones
 (plugins loaded, warps and JIT kernels built); ``gonio analyze``'s export standby pays them during the fit
-(analysis.export.prepare_exports) instead of after it.
+(analysis.exports.write.prepare_exports) instead of after it.
 """
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ from rig.alignment.poses import mirror_joints, plan_poses
 from rig.instrument.calibration_file import FILE_NAME, sha256_of, write_geometry_calibration
 from rig.instrument.camera_model import focal_length_px
 from rig.instrument.kinematics import Joints
-from rig.run.config import RigConfig
+from rig.run.config.files import RigConfig
 from rig.run.registry import provided_cameras
 from rig.run.session import instruments
 

@@ -1,7 +1,8 @@
 """A run on the instrument.
 
-Rig and sweep files (config.py, config_schema.py), sweeps and plans (sweeps.py, plan.py, plan_order.py),
-one measurement (measure.py), the reference target (reference.py), the runner (runner.py), the run store
-(store.py, store_formats.py, table.py), the adaptive sweep (adaptive.py), the backends a rig file names
-(backends.py, hardware.py) and the session that wires them together (session.py).
+``session.py`` is the front door (``start_run``, ``resume_run``, ``make_plan``); ``calibrate.py`` is the camera
+calibration's procedure. The families below it: ``config/`` (rig and sweep files, the sweep kinds), ``planning/``
+(reachability, order, swept paths), ``backends/`` (what a rig file opens), ``measuring/`` (the runner and one
+reading), ``storage/`` (the run directory and its journal), ``tables/`` (the calibrated samples table) and
+``adaptive/`` (sweeps that choose their points from measurements).
 """

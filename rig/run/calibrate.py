@@ -36,8 +36,8 @@ from acquisition.noise import SensorNoise
 from acquisition.photon_transfer import PhotonTransfer, PhotonTransferError, PtcPoint, fit_photon_transfer, pair_points
 from model.version import gonio_version
 from rig.instrument.clock import Clock
-from rig.run.config import ConfigError, RigConfig
-from rig.run.flat_source import FlatSource
+from rig.run.backends.flat_source import FlatSource
+from rig.run.config.files import ConfigError, RigConfig
 
 CALIBRATION_FORMAT = "gonio-camera-calibration/1"
 CALIBRATION_FILE = "camera_calibration.json"

@@ -1,8 +1,8 @@
 """The registry of rig backends: which names ``[link] kind`` may take, and what each backend's files may say.
 
-Backends are registered as Python entry points in the group ``gonio.backends`` (see :mod:`rig.run.backends`
+Backends are registered as Python entry points in the group ``gonio.backends`` (see :mod:`rig.run.backends.base`
 for what a backend is and how a lab registers its own). This module only finds them and reads their
-traits, which is all that reading a rig file needs; opening one is :mod:`rig.run.backends`'s.
+traits, which is all that reading a rig file needs; opening one is :mod:`rig.run.backends.base`'s.
 """
 
 from __future__ import annotations
@@ -86,7 +86,7 @@ def names() -> tuple[str, ...]:
 
 @functools.cache
 def load(name: str) -> BackendTraits:
-    """The object registered under ``name`` (a :class:`rig.run.backends.RigBackend`); BackendError if none."""
+    """The object registered under ``name`` (a :class:`rig.run.backends.base.RigBackend`); BackendError if none."""
     ep = _registered().get(name)
     if ep is None:
         known = names()

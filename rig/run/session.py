@@ -3,8 +3,8 @@
 ``make_plan`` is what ``gonio plan`` prints. ``start_run`` creates a run directory (manifest with both files'
 validated tables) and runs it; ``resume_run`` reopens one, rebuilds the same plan from its manifest and
 runs the points its journal lacks. Instruments come from the backend the rig file's ``[link] kind`` names,
-found by registration (:mod:`rig.run.backends`): gonio's Dynamixel and GRBL links with a real camera
-(:mod:`rig.run.hardware`), the simulated rig (registered by the simulator, which nothing in rig imports),
+found by registration (:mod:`rig.run.backends.base`): gonio's Dynamixel and GRBL links with a real camera
+(:mod:`rig.run.backends.hardware`), the simulated rig (registered by the simulator, which nothing in rig imports),
 or a lab's own.
 """
 
@@ -21,19 +21,28 @@ from rig.instrument.axis import AxisLimitError
 from rig.instrument.calibration_file import GeometryCalibration
 from rig.instrument.kinematics import forward, inverse, require
 from rig.instrument.kinematics_types import UnreachableError
-from rig.run.config import ConfigError, RigConfig, SweepConfig, as_table, parse, rig_config, saved_rig, sweep_config
-from rig.run.config_schema import SweepFile, run_metadata
-from rig.run.journal import check_records
-from rig.run.store import JOURNAL, RunStore, RunStoreError
+from rig.run.config.files import (
+    ConfigError,
+    RigConfig,
+    SweepConfig,
+    as_table,
+    parse,
+    rig_config,
+    saved_rig,
+    sweep_config,
+)
+from rig.run.config.schema import SweepFile, run_metadata
+from rig.run.storage.journal import check_records
+from rig.run.storage.store import JOURNAL, RunStore, RunStoreError
 
 # What only measuring needs (the runner, the HDR merge and numba behind it, the planner, the backends) is
 # imported inside the functions that measure: gonio analyze rebuilds a run's configuration through configs_of
 # and should not pay seconds of imports for a run it only reads.
 if TYPE_CHECKING:
-    from rig.run.backends import Instruments, StartPose
-    from rig.run.measure import CaptureSettings
-    from rig.run.plan import Plan
-    from rig.run.runner import ReferenceSettings, RunOptions, RunSummary
+    from rig.run.backends.base import Instruments, StartPose
+    from rig.run.measuring.measure import CaptureSettings
+    from rig.run.measuring.runner import ReferenceSettings, RunOptions, RunSummary
+    from rig.run.planning.plan import Plan
 
 
 class RunFinished(RunStoreError):
@@ -44,7 +53,7 @@ def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
     """The capture settings of a run from the rig's camera and the sweep's [capture] table."""
     from acquisition.exposure.spec import CameraTiming
     from rig.run.calibrate import camera_flat_field, camera_noise
-    from rig.run.measure import CaptureSettings
+    from rig.run.measuring.measure import CaptureSettings
 
     cam, cap = rig.file.camera, sweep.file.capture
     return CaptureSettings(
@@ -63,7 +72,7 @@ def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
 
 def reference_settings(rig: RigConfig) -> ReferenceSettings | None:
     """The reference schedule from the rig's [reference] table, None for kind 'none'."""
-    from rig.run.runner import ReferenceSettings
+    from rig.run.measuring.runner import ReferenceSettings
 
     ref = rig.file.reference
     if ref.kind == "none":
@@ -106,7 +115,7 @@ def _plan_bar(points: int, shown: bool) -> Iterator[Callable[[str], None] | None
 
     from tqdm.auto import tqdm
 
-    from rig.run.plan import PLAN_STAGES
+    from rig.run.planning.plan import PLAN_STAGES
 
     with tqdm(total=len(PLAN_STAGES), desc=f"planning {points} points", unit="stage", file=sys.stderr,
               dynamic_ncols=True) as bar:  # fmt: skip
@@ -125,8 +134,8 @@ def make_plan(rig: RigConfig, sweep: SweepConfig, *, progress: bool = False) -> 
 
     ``progress``: a bar on stderr over the planner's stages when the sweep has more than PROGRESS_POINTS points.
     """
-    from rig.run.backends import backend
-    from rig.run.plan import plan_sweep
+    from rig.run.backends.base import backend
+    from rig.run.planning.plan import plan_sweep
 
     ref = reference_settings(rig)
     per_point = _per_point_exposure_s(rig, sweep)
@@ -144,7 +153,7 @@ def make_plan(rig: RigConfig, sweep: SweepConfig, *, progress: bool = False) -> 
 
 def _approach_s(rig: RigConfig) -> float:
     """Time (s) a pose's anti-backlash approach adds: out past it and back, the slowest axis's two trapezoids."""
-    from rig.run.plan_order import trapezoid_time_s
+    from rig.run.planning.order import trapezoid_time_s
 
     a = rig.file.link.backlash_approach_deg
     if not a or not rig.axes:
@@ -154,7 +163,7 @@ def _approach_s(rig: RigConfig) -> float:
 
 def instruments(rig: RigConfig, start: StartPose | None = None) -> contextlib.AbstractContextManager[Instruments]:
     """Open the rig's link, camera and reference for a run through its registered backend (see RigBackend)."""
-    from rig.run.backends import backend
+    from rig.run.backends.base import backend
 
     return backend(rig.file.link.kind).open(rig, start=start)
 
@@ -186,7 +195,7 @@ def manifest(rig: RigConfig, sweep: SweepConfig, plan: Plan, run_options: RunOpt
 
 def options_for(rig: RigConfig, sweep: SweepConfig, progress: bool) -> RunOptions:
     """Run options from the rig's [link] and the sweep's [capture] tables."""
-    from rig.run.runner import RunOptions
+    from rig.run.measuring.runner import RunOptions
 
     link, cap = rig.file.link, sweep.file.capture
     return RunOptions(move_timeout_s=link.move_timeout_s, settle_s=link.settle_s, on_stop=link.on_stop,
@@ -209,7 +218,7 @@ def _run(
     store: RunStore, rig: RigConfig, sweep: SweepConfig, plan: Plan, progress: bool,
     capture: CaptureSettings | None = None,
 ) -> RunSummary:  # fmt: skip
-    from rig.run.runner import Runner
+    from rig.run.measuring.runner import Runner
 
     capture = capture or capture_settings(rig, sweep)
     with instruments(rig, start=last_pose(store)) as inst:

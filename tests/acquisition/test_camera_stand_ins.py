@@ -22,9 +22,9 @@ from acquisition.cameras import CameraError
 from acquisition.files.dng import write_dng
 from acquisition.frame import Frame
 from rig.instrument.clock import ManualClock, SystemClock
-from rig.run.config import ConfigError, RigConfig, parse, rig_config
-from rig.run.config_schema import RigFile
-from rig.run.hardware import open_camera
+from rig.run.backends.hardware import open_camera
+from rig.run.config.files import ConfigError, RigConfig, parse, rig_config
+from rig.run.config.schema import RigFile
 
 
 def _rig(camera: dict[str, Any]) -> RigConfig:

@@ -17,7 +17,7 @@ import pytest
 
 from analysis.analyze import analyze, load_and_fit
 from analysis.ladder import parse_models
-from analysis.report_plots import angles_of, coverage, slices
+from analysis.report.plots import angles_of, coverage, slices
 from analysis.result import Analysis, AnalysisError
 from gonio import cli
 from model import CookTorrance
@@ -190,7 +190,7 @@ def test_the_same_inputs_give_the_same_bytes(gold_report: tuple[Analysis, Path],
 def test_the_slices_log_axes_make_only_the_ticks_in_view() -> None:
     from matplotlib.ticker import LogLocator
 
-    from analysis.report_slices import _InViewLogLocator
+    from analysis.report.slices import _InViewLogLocator
 
     for lo, hi in [(0.01, 3.0), (1.3e-4, 0.5), (0.2, 0.9), (2.0, 2000.0)]:
         for subs in [(1.0, 2.0, 5.0), (1.0,)]:

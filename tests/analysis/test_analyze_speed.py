@@ -20,8 +20,8 @@ ROOT = Path(__file__).resolve().parents[2]
 #: (its runner, planner, HDR merge and numba behind it), the image library, plots, Mitsuba, progress bars. (Reading a
 #: run's rig file loads the backend it names, as every rig file does: that module is cheap by design.)
 NOT_NEEDED = ("numba", "matplotlib", "mitsuba", "drjit", "OpenEXR", "tqdm", "asyncio", "cv2", "acquisition.hdr",
-              "acquisition.flatfield", "rig.run.runner", "rig.run.measure", "rig.run.calibrate", "rig.run.plan",
-              "model.kernels")  # fmt: skip
+              "acquisition.flatfield", "rig.run.measuring.runner", "rig.run.measuring.measure", "rig.run.calibrate",
+              "rig.run.planning.plan", "model.kernels")  # fmt: skip
 
 
 def loaded_after(code: str) -> list[str]:
@@ -174,8 +174,8 @@ open(sys.argv[1] + "/analysis.pickle", "wb").write(cloudpickle.dumps(a))
 """
 DRAW_WITHOUT_SCIPY = """
 import pickle, sys
-import analysis.report_html, analysis.report_plots
-from analysis.report_plots import write_figures
+import analysis.report.html, analysis.report.plots
+from analysis.report.plots import write_figures
 assert not [m for m in sys.modules if m.split(".")[0] == "scipy"], "the figures' modules loaded scipy"
 a = pickle.loads(open(sys.argv[1] + "/analysis.pickle", "rb").read())
 figures = write_figures(a, sys.argv[1] + "/figures", jobs=1)

@@ -1,4 +1,4 @@
-"""analysis.export: the Mitsuba XML and JSON exports load in Mitsuba 3 and evaluate to the model, the MERL
+"""analysis.exports.write: the Mitsuba XML and JSON exports load in Mitsuba 3 and evaluate to the model, the MERL
 export reads back bin by bin, and export_material writes what it promises (and nothing when it refuses).
 
 Mitsuba runs under scalar_rgb (always available; one call per pair). Its ``eval`` includes cos(theta_o)
@@ -18,7 +18,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from analysis.export import FILES, export_material, export_notes, mitsuba_dict, mitsuba_xml
+from analysis.exports.write import FILES, export_material, export_notes, mitsuba_dict, mitsuba_xml
 from model import CookTorrance, Lambert, MerlTable, MetalRoughness, Phong, read_merl
 from model.base import BRDF
 from model.fit.metal_roughness import to_metal_roughness
@@ -250,12 +250,12 @@ def test_the_projection_stays_the_default_on_request_and_a_bad_choice_is_refused
 def test_a_model_that_cannot_be_tabulated_falls_back_to_the_projection_and_says_why(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import analysis.export_stock
+    import analysis.exports.stock
 
     def refuse(model: BRDF, *args: object, **kwargs: object) -> None:
         raise ValueError(f"{type(model).__name__}: f_r is negative at some tabulated directions")
 
-    monkeypatch.setattr(analysis.export_stock, "tabulate", refuse)
+    monkeypatch.setattr(analysis.exports.stock, "tabulate", refuse)
     m = PLUGIN["phong"]
     paths = export_material(m, tmp_path / "auto", name="phong")
     facts = json.loads(paths["material"].read_text())["facts"]

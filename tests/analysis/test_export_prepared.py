@@ -1,4 +1,4 @@
-"""What an export standby computes before the fit (analysis.export.prepare_exports) changes no byte of the exports.
+"""What an export standby computes before the fit (analysis.exports.write.prepare_exports) changes no export byte.
 
 The shared draws (the albedo's uniform numbers, directions and half vectors; the projections' seeded pairs; the
 error grid; the tabulation's square) are the arrays the exports computed for themselves before, now made once per
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from analysis.analyze import write_report
-from analysis.export import ALBEDO_EVALS, export_material, prepare_exports
+from analysis.exports.write import ALBEDO_EVALS, export_material, prepare_exports
 from analysis.result import Analysis
 from model import CookTorrance, microfacet
 from model import integrate as integrate_module

@@ -20,7 +20,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from analysis.export import export_material
+from analysis.exports.write import export_material
 from model import CookTorrance, Lambert, Phong, Ward
 from model.base import BRDF
 from model.mitsuba.projection import grid_pairs

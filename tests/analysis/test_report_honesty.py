@@ -13,9 +13,9 @@ import pytest
 
 from analysis.analyze import fit_json, write_report
 from analysis.ladder import fit_ladder
-from analysis.report_html import page_warnings, render_html
-from analysis.report_params import correlation, parameter_status
-from analysis.report_plots import write_figures
+from analysis.parameters import correlation, parameter_status
+from analysis.report.html import page_warnings, render_html
+from analysis.report.plots import write_figures
 from analysis.result import Analysis, Reference, SourceSummary, noise_words
 from model import CookTorrance
 from model.fit.samples import Samples
@@ -189,7 +189,7 @@ def test_figures_drawn_side_by_side_are_the_same_bytes(conductor: Analysis, tmp_
 def test_the_note_that_replaces_the_parameter_panel_stays_inside_it() -> None:
     # A fit of another Fresnel kind than the truth's says why its parameters are not compared; the reason is
     # long, and wrapped at the figure's edge (matplotlib's wrap=True) it ran across the error map beside it.
-    from analysis.report_truth import TruthComparison, truth_figure
+    from analysis.report.truth import TruthComparison, truth_figure
 
     rng = np.random.default_rng(0)
     why = ("the truth differs in the fields the fit holds fixed: fresnel = 'conductor' (fit: 'schlick'), "

@@ -16,7 +16,7 @@ from analysis.ladder import parse_models
 from analysis.result import AnalysisError
 from gonio import cli
 from model.fit.spec import LAMBERT
-from rig.run.adaptive import AdaptiveSettings, run_adaptive
+from rig.run.adaptive.sweep import AdaptiveSettings, run_adaptive
 from tests.run_helpers import sim_rig
 
 pytestmark = pytest.mark.mitsuba

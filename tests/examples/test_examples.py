@@ -19,7 +19,7 @@ from gonio.cli import build_parser
 from rig.instrument.clock import ManualClock
 from rig.instrument.links.dynamixel_table import X_SERIES
 from rig.instrument.links.grbl import AXIS_LETTERS, GrblLink
-from rig.run.config import RigConfig, load_rig, load_sweep
+from rig.run.config.files import RigConfig, load_rig, load_sweep
 from simulator.grbl.server import open_virtual_grbl
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"

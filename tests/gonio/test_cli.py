@@ -30,9 +30,9 @@ def test_slice_peaks_at_the_mirror_direction():
 
 
 def test_gonio_models_the_report_and_the_sweep_files_share_the_theta_o_sign():
-    from analysis.report_plots import angles_of, in_plane_directions
+    from analysis.report.plots import angles_of, in_plane_directions
     from model.geometry import degrees_to_vector
-    from rig.run.sweeps import in_plane
+    from rig.run.config.sweeps import in_plane
 
     signed = np.array([-60.0, -20.0, 20.0, 60.0])
     wi, wo = in_plane_directions(35.0, signed)
@@ -122,10 +122,10 @@ def test_adaptive_metadata_options_and_their_mistakes(capsys: pytest.CaptureFixt
 
 
 def test_gonio_adaptive_shows_its_rounds_on_a_bar_with_an_eta(monkeypatch, tmp_path, capsys):
-    # The rounds themselves are run_adaptive's (tests/rig/run/test_adaptive.py); here: the command's bar over them.
+    # The rounds themselves are run_adaptive's (tests/rig/run/adaptive/test_adaptive.py); here: the command's bar over them.
     from pathlib import Path
 
-    import rig.run.adaptive as adaptive
+    import rig.run.adaptive.sweep as adaptive
     from model.fit.solve import fit
     from model.fit.spec import LAMBERT
     from tests.analysis.test_report_honesty import GOLD, in_plane

@@ -142,7 +142,7 @@ def test_output_into_a_closed_pipe_ends_quietly():
 
 
 def test_a_torn_journal_line_on_resume_is_one_plain_line_not_a_python_warning(tmp_path, capsys):
-    from rig.run.store import RunStore
+    from rig.run.storage.store import RunStore
 
     run = tmp_path / "run"
     with RunStore.create(run, {"points": 1}) as store:

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from gonio import cli
-from rig.run.config_schema import MAX_SWEEP_POINTS
+from rig.run.config.schema import MAX_SWEEP_POINTS
 
 
 def _grid(tmp_path: Path, n_i: int, n_o: int, **extra: object) -> Path:

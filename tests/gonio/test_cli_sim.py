@@ -127,7 +127,7 @@ def test_sim_rig_serves_servos_and_writes_frames_of_the_pose_they_hold(tmp_path)
     from rig.instrument.geometry import RigGeometry
     from rig.instrument.kinematics import inverse, require
     from rig.instrument.links.dynamixel import DynamixelLink
-    from rig.run.config import default_axes
+    from rig.run.config.files import default_axes
 
     proc = subprocess.Popen(
         [sys.executable, "-m", "gonio.cli", "sim", "rig", "--frames", str(tmp_path), "--speed", "20"],
@@ -193,7 +193,7 @@ def test_sim_rig_on_grbl_homes_and_writes_frames_of_the_pose_the_steppers_hold(t
     from rig.instrument.clock import SystemClock
     from rig.instrument.kinematics import inverse, require
     from rig.instrument.links.grbl import GrblLink
-    from rig.run.config import load_rig
+    from rig.run.config.files import load_rig
 
     rig_file = Path(__file__).resolve().parents[2] / "examples" / "rig_simulated_grbl.toml"
     rig = load_rig(rig_file)

@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gonio import cli
-from tests.rig.run.test_config_fuzz import key_paths
+from tests.rig.run.config.test_config_fuzz import key_paths
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 RIGS = sorted(p.name for p in EXAMPLES.glob("rig_*.toml"))

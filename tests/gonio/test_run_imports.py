@@ -19,8 +19,8 @@ ROOT = Path(__file__).resolve().parents[2]
 # from the example rig file (what `gonio run` does before it opens the rig).
 PROBE = f"""
 import json, sys
-import gonio.cli, gonio.cli_run, rig.run.session, rig.run.runner, simulator.backend, simulator.rig
-from rig.run.config import load_rig
+import gonio.cli, gonio.cli_run, rig.run.session, rig.run.measuring.runner, simulator.backend, simulator.rig
+from rig.run.config.files import load_rig
 from simulator.from_config import rig_from
 rig = load_rig({str(ROOT / "examples" / "rig_simulated.toml")!r})
 rig_from(rig)  # the unstarted rig: what opening it imports, without starting a bus or a render
@@ -48,7 +48,7 @@ def test_a_simulated_servo_run_imports_nothing_it_does_not_need_before_its_first
     out = subprocess.run([sys.executable, "-c", PROBE], capture_output=True, text=True, cwd=ROOT, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
     loaded = set(json.loads(out.stdout.strip().splitlines()[-1]))
-    assert "rig.run.runner" in loaded and "simulator.rig" in loaded  # the probe did import the run
+    assert "rig.run.measuring.runner" in loaded and "simulator.rig" in loaded  # the probe did import the run
     early = {m: why for m, why in NOT_BEFORE_THE_FIRST_READING.items() if m in loaded}
     assert not early, f"imported before the first reading, though only needed for: {early}"
 

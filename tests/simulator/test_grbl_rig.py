@@ -8,8 +8,8 @@ import pytest
 from rig.instrument.geometry import JointLimits, RigGeometry
 from rig.instrument.kinematics import Joints, inverse, require
 from rig.instrument.links.grbl_protocol import GrblError
-from rig.run.config import GRBL_PULLOFF_DEG, default_axes, default_grbl_axes
-from rig.run.motion_guard import MotionGuard
+from rig.run.config.files import GRBL_PULLOFF_DEG, default_axes, default_grbl_axes
+from rig.run.measuring.motion_guard import MotionGuard
 from rig.run.session import make_plan
 from simulator.from_config import spec_from
 from simulator.grbl_rig import SimulatedGrblRig, grbl_settings

@@ -14,8 +14,8 @@ from model.mitsuba.materials import to_mitsuba
 from rig.instrument.alignment import Alignment, aligned_forward, aligned_pose
 from rig.instrument.clock import ManualClock
 from rig.instrument.kinematics import Joints, forward, inverse, require, world_pose
-from rig.run.config import ConfigError, parse, rig_config
-from rig.run.config_schema import RigFile
+from rig.run.config.files import ConfigError, parse, rig_config
+from rig.run.config.schema import RigFile
 from simulator.from_config import spec_from
 from simulator.render.spec import CameraSpec, LightSpec
 from simulator.rig import SimRigSpec, SimulatedRig

@@ -11,7 +11,7 @@ import pytest
 
 from gonio.cli import main
 from rig.instrument.alignment import aligned_forward
-from rig.run.config import ConfigError, load_rig, load_sweep
+from rig.run.config.files import ConfigError, load_rig, load_sweep
 from rig.run.session import make_plan
 
 pytestmark = pytest.mark.mitsuba

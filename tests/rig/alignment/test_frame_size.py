@@ -16,7 +16,7 @@ from acquisition.frame import Frame
 from rig.alignment import procedure
 from rig.alignment.fit import CalibrationError
 from rig.alignment.procedure import calibrate_geometry
-from rig.run.config import load_rig
+from rig.run.config.files import load_rig
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 

@@ -1,0 +1,1 @@
+"""The adaptive sweep: rounds of ordinary runs whose points are chosen from what was measured, and its resume state."""

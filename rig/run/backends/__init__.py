@@ -1,0 +1,1 @@
+"""What a rig file opens: registered backends, hardware links and cameras, the reference target, the flat source."""

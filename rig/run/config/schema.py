@@ -1,0 +1,556 @@
+"""The schema of rig and sweep files (TOML): every table, key, type, unit and default, validated strictly.
+
+Unknown keys are errors (``extra="forbid"``), types are not coerced (a string is never a number), and
+numbers carry their bounds here, where they are defined. ``rig.run.config.files`` loads files against these models
+and turns pydantic's errors into messages that name the file, the key, the value and what was expected.
+
+Rig file tables: ``[geometry]`` (and ``[geometry.limits]``), ``[link]``, ``[axes.<joint>]``, ``[camera]``
+(``[camera.noise]``, ``[camera.options]``), ``[reference]``, ``[simulation]`` (``[simulation.material]``,
+``[simulation.sensor]``, ``[simulation.misalignment]``). Sweep file tables:
+``[sweep]`` and ``[capture]``. Both files may have ``[metadata]`` (``sample``, ``operator``, ``notes`` and free
+keys), which a run carries into its manifest, its tables and the report. See examples/*.toml for annotated files.
+
+One file past 400 lines on purpose: it is the whole schema of the two file kinds, so a key is checked
+against one place (and the docs' key tables are read from here); the simulation's tables sit beside the
+rig file's because the simulator reads them through the same validation.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic_core import PydanticCustomError
+
+from acquisition.cameras import CameraError
+from acquisition.cameras import registry as cameras
+from acquisition.cameras.trigger import check_callable, check_command
+from rig.run import registry
+
+# Upper bounds far beyond any instrument (a kilometre, a day, a billion electrons): they keep the arithmetic
+# that follows finite, so an absurd value is a named error here instead of an overflow somewhere later.
+Pos = Annotated[float, Field(gt=0, le=1e9, allow_inf_nan=False)]
+NonNeg = Annotated[float, Field(ge=0, le=1e9, allow_inf_nan=False)]
+Finite = Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)]
+Metres = Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]
+Seconds = Annotated[float, Field(gt=0, le=86400, allow_inf_nan=False)]
+Levels = Annotated[float, Field(ge=0, le=2**32, allow_inf_nan=False)]
+#: A seed numpy, the simulated sensor and Mitsuba's sampler (a uint32) all take.
+Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
+Deg90 = Annotated[float, Field(ge=0, le=90, allow_inf_nan=False)]
+Pair = tuple[Finite, Finite]
+Channels = (
+    Annotated[float, Field(gt=0, le=1)]
+    | tuple[
+        Annotated[float, Field(gt=0, le=1)], Annotated[float, Field(gt=0, le=1)], Annotated[float, Field(gt=0, le=1)]
+    ]
+)
+
+
+def _tuples(value: Any) -> Any:
+    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
+
+
+class Strict(BaseModel):
+    """Base of every table: unknown keys are errors, values are not coerced, models are frozen."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _arrays_as_tuples(cls, data: Any) -> Any:
+        # TOML arrays arrive as lists; strict mode takes only tuples for the fixed-length and frozen fields.
+        return {k: _tuples(v) for k, v in data.items()} if isinstance(data, dict) else data
+
+
+class Limits(Strict):
+    """``[geometry.limits]``: soft limits [min_deg, max_deg] per joint, in degrees."""
+
+    light: Pair = (-180.0, 180.0)
+    camera: Pair = (-180.0, 180.0)
+    tilt: Pair = (-90.0, 90.0)
+    roll: Pair = (-180.0, 180.0)
+    yaw: Pair = (-180.0, 180.0)
+
+
+class Geometry(Strict):
+    """``[geometry]``: the rig's layout, arm radii and sample size in metres, angles in degrees.
+
+    ``calibration``: a ``geometry_calibration.json`` (``gonio calibrate geometry``; relative to the rig
+    file) whose joint zeros, sample tilt and offset the kinematics correct for.
+    """
+
+    layout: Literal["four_axis", "in_plane", "fixed_camera"] = "four_axis"
+    light_radius_m: Metres = 0.5
+    camera_radius_m: Metres = 0.5
+    sample_width_m: Metres = 0.05
+    sample_height_m: Metres = 0.05
+    min_separation_deg: Annotated[float, Field(ge=0, lt=180)] = 8.0
+    max_zenith_deg: Annotated[float, Field(gt=0, lt=90)] = 85.0
+    camera_fov_deg: Annotated[float, Field(gt=0, lt=180)] = 8.0
+    beam_half_angle_deg: Annotated[float, Field(gt=0, lt=90)] = 0.25
+    camera_azimuth_deg: Finite = 0.0
+    plane_azimuth_deg: Finite = 0.0
+    limits: Limits = Limits()
+    calibration: str | None = None
+
+
+def _one_of(value: str, known: tuple[str, ...]) -> str:
+    # Worded as pydantic words a Literal, so the message reads like every other key's.
+    if value not in known:
+        raise PydanticCustomError("literal_error", "Input should be {expected}", {"expected": registry.listing(known)})
+    return value
+
+
+class Link(Strict):
+    """``[link]``: how the controller reaches the servos, and what it does when it stops.
+
+    ``kind`` names a registered rig backend (``gonio.backends``: simulated, dynamixel, grbl, or a lab's own).
+    """
+
+    kind: str = "simulated"
+    port: str | None = None
+    baudrate: Annotated[int, Field(gt=0, le=20_000_000)] = 1_000_000  # the fastest serial adapters: 12 Mbaud
+    retries: Annotated[int, Field(ge=0, le=20)] = 2
+    latency_timer_ms: Annotated[float, Field(ge=0, le=1000)] = 16.0
+    poll_interval_s: Annotated[float, Field(gt=0, le=5)] = 0.02
+    move_timeout_s: Annotated[float, Field(gt=0, le=3600)] = 60.0
+    settle_s: Annotated[float, Field(ge=0, le=600)] = 0.0
+    on_stop: Literal["torque_off", "hold"] = "torque_off"
+    allow_reboot: bool = False
+    #: Known play of every joint's gears (deg of joint), unless its [axes.<joint>] table says otherwise.
+    backlash_deg: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] = 0.0
+    #: Anti-backlash approach (deg of joint): every pose is reached by overshooting this far and coming back
+    #: from one side, so the load rests against the same flank; 0 moves straight there.
+    backlash_approach_deg: Annotated[float, Field(ge=0, le=20, allow_inf_nan=False)] = 0.0
+
+    @field_validator("kind")
+    @classmethod
+    def _registered(cls, value: str) -> str:
+        return _one_of(value, registry.names())
+
+    @model_validator(mode="after")
+    def _port_for_hardware(self) -> Link:
+        if registry.load(self.kind).needs_port and not self.port:
+            without = [n for n in registry.names() if not registry.load(n).needs_port]
+            raise ValueError(
+                f"a {self.kind} link needs port (e.g. '/dev/ttyUSB0'); only {registry.listing(without)} has none"
+            )
+        return self
+
+
+class AxisTable(Strict):
+    """``[axes.<joint>]``: one servo or motor axis; lengths in degrees of the joint, times in seconds."""
+
+    id: Annotated[int, Field(ge=0, le=252)] | None = None
+    letter: Literal["X", "Y", "Z", "A", "B", "C"] | None = None
+    # Upper bounds far beyond any joint: they keep move-time and path arithmetic finite.
+    units_per_degree: Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)] | None = None
+    gear_ratio: Annotated[float, Field(gt=0, le=1e4, allow_inf_nan=False)] = 1.0
+    # None = left out (1 and -180 deg, or a simulated GRBL's homing): a run's manifest writes every default out,
+    # so "left out" must be a value that survives the dump, not a key missing from it.
+    direction: Literal[1, -1] | None = None
+    zero_offset_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] | None = None
+    min_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] | None = None
+    max_deg: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] | None = None
+    max_speed_deg_s: Annotated[float, Field(gt=0, le=1e5, allow_inf_nan=False)] = 60.0
+    max_accel_deg_s2: Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)] = 120.0
+    tolerance_deg: Annotated[float, Field(gt=0, le=90, allow_inf_nan=False)] = 0.2
+    #: Known play between this joint's motor and its load (deg of joint); [link] backlash_deg if left out.
+    backlash_deg: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] | None = None
+
+    @model_validator(mode="after")
+    def _one_address(self) -> AxisTable:
+        if (self.id is None) == (self.letter is None):
+            raise ValueError("give exactly one of id (a Dynamixel id) or letter (a GRBL axis)")
+        return self
+
+
+class Noise(Strict):
+    """``[camera.noise]``: the sensor's gain (e-/DN), noise (e-), dark current (e-/s) and levels (DN)."""
+
+    # A gain of 1e-3 e-/DN to 1e5 e-/DN spans every sensor there is; beyond it the noise model's sums overflow.
+    e_per_dn: Annotated[float, Field(ge=1e-3, le=1e5, allow_inf_nan=False)] = 4.0
+    read_noise_e: Annotated[float, Field(ge=0, le=1e6, allow_inf_nan=False)] = 3.0
+    dark_current_e_per_s: Annotated[float, Field(ge=0, le=1e9, allow_inf_nan=False)] = 0.5
+    black_level_dn: Levels = 512.0
+    white_level_dn: Annotated[float, Field(gt=0, le=2**32, allow_inf_nan=False)] = 16383.0
+    full_well_e: Annotated[float, Field(gt=0, le=1e9, allow_inf_nan=False)] = 60000.0
+
+
+#: [camera] keys every backend reads; the others belong to one backend or a few (``CameraBackend.keys``).
+COMMON_CAMERA_KEYS = ("backend", "min_exposure_s", "max_exposure_s", "overhead_s", "roi", "noise", "calibration",
+                      "flat_field", "capture_timeout_s")  # fmt: skip
+#: The keys of the camera that comes with the simulated rig.
+SIMULATED_CAMERA_KEYS = ("resolution", "spp", "variant")
+
+
+class Camera(Strict):
+    """``[camera]``: the camera backend, its exposure range (s), ROI (pixels), noise and calibration files.
+
+    ``backend`` names a registered camera backend (``gonio.cameras``: folder, opencv, gphoto2, genicam, or a
+    lab's own) or one that comes with the rig backend (the simulated rig's "simulated"). Besides the common
+    keys each backend reads its own (``acquisition.cameras.builtin``): folder: folder, trigger (a command
+    as a list of arguments with {exposure_s}-style placeholders, or "module:function"), trigger_timeout_s,
+    pattern, timeout_s, poll_interval_s, stable_polls, settle_s, accept_unconfirmed_exposure; opencv:
+    device (index, device path, video file or image-sequence pattern), api, discard_frames, strict; gphoto2:
+    port ("usb:001,004", "disk:/path"), model, download_dir, keep_on_camera; genicam: cti_file (the GenTL
+    producer), serial_number, index, discard_frames, timeout_s, pixel_format; simulated: resolution, spp,
+    variant. A key of another backend is an error naming whose it is. ``calibration`` and ``flat_field`` are
+    files written by ``gonio calibrate camera`` (relative to the rig file).
+    """
+
+    backend: str = "simulated"
+    min_exposure_s: Seconds = 1e-5
+    max_exposure_s: Seconds = 30.0
+    overhead_s: Annotated[float, Field(ge=0, le=3600, allow_inf_nan=False)] = 0.0
+    #: Wall seconds a capture may take beyond twice its exposure before the run stops on a camera fault.
+    capture_timeout_s: Annotated[float, Field(gt=0, le=3600)] = 60.0
+    roi: tuple[int, int, int, int] | None = None
+    noise: Noise = Noise()
+    calibration: str | None = None
+    flat_field: str | None = None
+    # simulated
+    resolution: tuple[Annotated[int, Field(ge=8, le=8192)], Annotated[int, Field(ge=8, le=8192)]] = (32, 32)
+    spp: Annotated[int, Field(ge=1, le=4096)] = 4
+    variant: str | None = None
+    # folder
+    folder: str | None = None
+    trigger: tuple[str, ...] | str | None = None
+    trigger_timeout_s: Seconds | None = None
+    pattern: tuple[str, ...] | None = None
+    poll_interval_s: Annotated[float, Field(gt=0, le=60)] | None = None
+    stable_polls: Annotated[int, Field(ge=1, le=100)] | None = None
+    settle_s: Annotated[float, Field(ge=0, le=3600, allow_inf_nan=False)] | None = None
+    accept_unconfirmed_exposure: bool | None = None
+    # opencv
+    device: Annotated[int, Field(ge=0, le=65535)] | str | None = None
+    api: Literal["any", "v4l2", "images", "ffmpeg", "gstreamer"] | None = None
+    strict: bool | None = None
+    # gphoto2
+    port: str | None = None
+    model: str | None = None
+    download_dir: str | None = None
+    keep_on_camera: bool | None = None
+    # genicam
+    cti_file: str | None = None
+    serial_number: str | None = None
+    index: Annotated[int, Field(ge=0, le=65535)] | None = None
+    pixel_format: str | None = None
+    # more than one backend
+    timeout_s: Annotated[float, Field(gt=0, le=3600)] | None = None
+    discard_frames: Annotated[int, Field(ge=0, le=64)] | None = None
+    options: dict[str, Any] | None = None
+
+    @field_validator("backend")
+    @classmethod
+    def _registered(cls, value: str) -> str:
+        return _one_of(value, registry.provided_cameras() + cameras.names())
+
+    @field_validator("trigger")
+    @classmethod
+    def _trigger(cls, value: tuple[str, ...] | str | None) -> tuple[str, ...] | str | None:
+        if isinstance(value, str):
+            check_callable(value)
+        elif value is not None:
+            check_command(value)
+        return value
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Camera:
+        if self.min_exposure_s >= self.max_exposure_s:
+            raise ValueError(f"min_exposure_s {self.min_exposure_s!r} must be below max_exposure_s")
+        keys, required = _backend_keys(self.backend)
+        stray = sorted(set(self.model_fields_set) - set(COMMON_CAMERA_KEYS) - set(keys))
+        if stray:
+            whose = _owners(stray[0])
+            raise ValueError(
+                f"camera.{stray[0]} = {_shown(getattr(self, stray[0]))}: the {self.backend!r} camera backend does "
+                f"not read this key{f' ({whose})' if whose else ''}; it reads "
+                f"{', '.join(keys) or 'only the common keys'} besides {', '.join(COMMON_CAMERA_KEYS[1:])}"
+            )
+        missing = [k for k in required if getattr(self, k) in (None, "")]
+        if missing:
+            hint = f": {_HINTS[missing[0]]}" if missing[0] in _HINTS else ""
+            raise ValueError(f"the {self.backend} camera backend needs {', '.join(missing)}{hint}")
+        return self
+
+
+def _backend_keys(backend: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The [camera] keys a registered backend reads beyond the common ones, and those it needs."""
+    if backend in registry.provided_cameras():
+        return SIMULATED_CAMERA_KEYS, ()
+    found = cameras.camera_backend(backend)
+    return found.keys, found.required
+
+
+def camera_keys(backend: str) -> tuple[str, ...] | None:
+    """Every [camera] key ``backend`` reads (the common ones included), None for a backend not registered."""
+    try:
+        return COMMON_CAMERA_KEYS + _backend_keys(backend)[0]
+    except CameraError:
+        return None
+
+
+_HINTS = {
+    "folder": "the directory the tethering software writes to",
+    "cti_file": "the GenTL producer (.cti file) of the camera's vendor",
+}
+
+
+def _shown(value: Any) -> str:
+    return repr(list(value) if isinstance(value, tuple) else value)
+
+
+def _owners(key: str) -> str:
+    """Which of gonio's camera backends read ``key``, for an error message."""
+    from acquisition.cameras import builtin
+
+    gonio_own = {"folder": builtin.FOLDER, "opencv": builtin.OPENCV, "gphoto2": builtin.GPHOTO2,
+                 "genicam": builtin.GENICAM}  # fmt: skip
+    owners = [name for name, b in gonio_own.items() if key in b.keys]
+    if key in SIMULATED_CAMERA_KEYS:
+        owners.append("simulated")
+    return f"{' and '.join(owners)} read{'s' if len(owners) == 1 else ''} it" if owners else ""
+
+
+class Reference(Strict):
+    """``[reference]``: the Lambertian reference target, where it is measured and how often."""
+
+    kind: Literal["simulated", "manual", "none"] = "simulated"
+    albedo: Channels = 0.99
+    albedo_std_error: Annotated[float, Field(ge=0, lt=1)] = 0.005
+    theta_i_deg: Annotated[float, Field(ge=0, lt=85)] = 0.0
+    theta_o_deg: Annotated[float, Field(ge=0, lt=85)] = 30.0
+    every: Annotated[int, Field(ge=0, le=1_000_000)] = 50
+    drift_sigma: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = 4.0
+    target_snr: Annotated[float, Field(gt=0, le=1e5, allow_inf_nan=False)] | None = None
+
+
+class Material(Strict):
+    """``[simulation.material]``: a model of the model module by class name, with its parameters."""
+
+    model_config = ConfigDict(extra="allow", strict=True, frozen=True)
+
+    model: str = "Lambert"
+
+    def parameters(self) -> dict[str, Any]:
+        """The model's keyword arguments (every key but ``model``), lists as tuples."""
+        extra = dict(self.model_extra or {})
+        return {k: tuple(v) if isinstance(v, list) else v for k, v in extra.items()}
+
+
+ZeroOffset = Annotated[float, Field(ge=-45, le=45, allow_inf_nan=False)]
+OffsetMm = Annotated[float, Field(ge=-50, le=50, allow_inf_nan=False)]
+
+
+class Misalignment(Strict):
+    """``[simulation.misalignment]``: how the simulated rig differs from the drawn one (hidden from the controller).
+
+    Joint zeros (deg): a joint that reports angle a stands at a - zero. The sample's normal is tipped by
+    ``sample_tilt_deg`` towards the stage-frame azimuth ``sample_tilt_azimuth_deg``; its centre sits
+    ``sample_offset_mm`` (x tangent, y bitangent, z normal of the stage) off the arms' axis. The light is a
+    disk of ``light_size_mm`` diameter (0: a point) whose irradiance falls by the fraction ``beam_falloff``
+    at the edge of the lit spot; ``stray_light`` adds ambient counts per second to every pixel; the lamp
+    warms up by the fraction ``lamp_drift`` with time constant ``lamp_warmup_s`` of rig time; each Dynamixel
+    joint comes to rest anywhere within ``joint_settle_ticks`` encoder counts around what its encoder reads
+    (1: a real servo, whose position loop cannot tell places within one count apart); every joint's gears have
+    ``backlash_deg`` of play the encoder cannot see (the load lags the motor by half of it behind the direction
+    it was last driven in), on either link.
+    See ``rig.instrument.alignment`` for the exact definitions.
+    """
+
+    light_zero_deg: ZeroOffset = 0.0
+    camera_zero_deg: ZeroOffset = 0.0
+    tilt_zero_deg: ZeroOffset = 0.0
+    roll_zero_deg: ZeroOffset = 0.0
+    yaw_zero_deg: ZeroOffset = 0.0
+    sample_tilt_deg: Annotated[float, Field(ge=0, le=20, allow_inf_nan=False)] = 0.0
+    sample_tilt_azimuth_deg: Finite = 0.0
+    sample_offset_mm: tuple[OffsetMm, OffsetMm, OffsetMm] = (0.0, 0.0, 0.0)
+    light_size_mm: Annotated[float, Field(ge=0, le=200, allow_inf_nan=False)] = 0.0
+    beam_falloff: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0
+    stray_light: NonNeg = 0.0
+    lamp_drift: Annotated[float, Field(gt=-0.9, lt=10, allow_inf_nan=False)] = 0.0
+    lamp_warmup_s: Pos = 600.0
+    joint_settle_ticks: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] = 0.0
+    backlash_deg: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] = 0.0
+
+
+class SimulatedSensor(Strict):
+    """``[simulation.sensor]``: the simulated sensor as it really is, hidden from the controller.
+
+    Noise keys left out are those of ``[camera.noise]`` (what the controller assumes); ``vignetting`` is
+    the fraction of light lost at the sensor's corner, ``prnu_rms`` the pixels' relative sensitivity RMS,
+    ``nonlinearity`` the response's relative compression at full well (``simulator.camera.pixels``).
+    """
+
+    e_per_dn: Annotated[float, Field(ge=1e-3, le=1e5, allow_inf_nan=False)] | None = None
+    read_noise_e: Annotated[float, Field(ge=0, le=1e6, allow_inf_nan=False)] | None = None
+    dark_current_e_per_s: Annotated[float, Field(ge=0, le=1e9, allow_inf_nan=False)] | None = None
+    black_level_dn: Levels | None = None
+    white_level_dn: Annotated[float, Field(gt=0, le=2**32, allow_inf_nan=False)] | None = None
+    full_well_e: Annotated[float, Field(gt=0, le=1e9, allow_inf_nan=False)] | None = None
+    vignetting: Annotated[float, Field(ge=0, le=0.9)] = 0.0
+    prnu_rms: Annotated[float, Field(ge=0, le=0.2)] = 0.0
+    nonlinearity: Annotated[float, Field(ge=0, le=0.2)] = 0.0
+
+
+class Simulation(Strict):
+    """``[simulation]``: what the simulated rig stands in for: material, light, time, seed, sensor, imperfections.
+
+    ``camera_output``: "linear" frames, "raw" CFA mosaics, or "dng": mosaics written as DNG files and read back
+    through rawpy, the path of a real camera's RAW files.
+
+    ``link``: what moves the simulated joints: "dynamixel" (virtual XM430 servos, ``[axes.*] id``) or "grbl" (a
+    virtual GRBL 1.1 controller, ``[axes.*] letter``, coordinated moves, homed before a run moves).
+    """
+
+    material: Material = Material()
+    camera_output: Literal["linear", "raw", "dng"] = "linear"
+    sensor: SimulatedSensor = SimulatedSensor()
+    misalignment: Misalignment = Misalignment()
+    light_intensity_w_sr: Pos = 1.0
+    light_kind: Literal["point", "spot"] = "point"
+    time_scale: Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)] | None = None
+    fixed_pattern_dn: Levels = 0.0
+    seed: Seed = 0
+    link: Literal["dynamixel", "grbl"] = "dynamixel"
+
+
+MetaValue = str | int | float | bool
+
+
+class Metadata(Strict):
+    """``[metadata]``: what the data are about, carried unchanged into the manifest, the tables and the report.
+
+    ``sample``: what is measured; ``operator``: who measured it; ``notes``: free text; any other key is kept as
+    given, if its value is a string, number, boolean, date or a list of those (a table is refused: metadata
+    stays one level deep, so every key reads as one line). Dates become ISO 8601 strings.
+    """
+
+    model_config = ConfigDict(extra="allow", strict=True, frozen=True)
+
+    sample: str | None = None
+    operator: str | None = None
+    notes: str | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _plain_values(cls, data: Any) -> Any:
+        if not isinstance(data, dict):
+            return data
+        out: dict[str, Any] = {}
+        for key, value in data.items():
+            if isinstance(value, list | tuple):
+                out[key] = tuple(_meta_value(key, v) for v in value)
+            else:
+                out[key] = _meta_value(key, value)
+        return out
+
+    def as_dict(self) -> dict[str, Any]:
+        """The keys that are set, lists as lists (plain JSON)."""
+        keys = {"sample": self.sample, "operator": self.operator, "notes": self.notes, **(self.model_extra or {})}
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in keys.items() if v is not None}
+
+
+def _meta_value(key: str, value: Any) -> MetaValue:
+    if hasattr(value, "isoformat"):  # TOML dates and times
+        return str(value.isoformat())
+    if isinstance(value, float) and not math.isfinite(value):  # NaN and inf cannot travel through JSON
+        raise ValueError(f"{key} = {value}: expected a finite number, a string or a boolean")
+    if not isinstance(value, str | int | float | bool):
+        raise ValueError(f"{key} = {repr(value)[:80]}: expected a string, number, boolean, date or a list of those "
+                         "(metadata is one level deep: no tables)")  # fmt: skip
+    return value
+
+
+def run_metadata(rig: RigFile, sweep: SweepFile) -> dict[str, Any]:
+    """A run's metadata: the rig file's ``[metadata]`` overlaid with the sweep file's (its keys win)."""
+    return {**rig.metadata.as_dict(), **sweep.metadata.as_dict()}
+
+
+class RigFile(Strict):
+    """A rig file: the hardware (or its simulation) a sweep runs on."""
+
+    name: str = "rig"
+    metadata: Metadata = Metadata()
+    geometry: Geometry = Geometry()
+    link: Link = Field(default_factory=Link)
+    axes: dict[str, AxisTable] = Field(default_factory=dict)
+    camera: Camera = Field(default_factory=Camera)
+    reference: Reference = Reference()
+    simulation: Simulation = Simulation()
+
+
+#: The most points a sweep may expand to: far beyond any real sweep (a dense grid of 10^4 points runs for days),
+#: short of what would exhaust memory generating and planning it.
+MAX_SWEEP_POINTS = 1_000_000
+
+
+class Sweep(Strict):
+    """``[sweep]``: which BRDF directions to measure, in degrees (at most MAX_SWEEP_POINTS combinations)."""
+
+    kind: Literal["grid", "in_plane", "rusinkiewicz", "list"]
+    theta_i_deg: tuple[Finite, ...] | None = None
+    theta_o_deg: tuple[Finite, ...] | None = None
+    phi_i_deg: tuple[Finite, ...] | None = None
+    phi_o_deg: tuple[Finite, ...] | None = None
+    theta_h_deg: tuple[Deg90, ...] | None = None
+    theta_d_deg: tuple[Deg90, ...] | None = None
+    phi_d_deg: tuple[Finite, ...] | None = None
+    phi_h_deg: tuple[Finite, ...] | None = None
+    points: tuple[tuple[Finite, Finite, Finite, Finite], ...] | None = None
+    isotropic: bool = False
+    order: bool = True
+
+    @model_validator(mode="after")
+    def _keys_for_kind(self) -> Sweep:
+        needed = {
+            "grid": ("theta_i_deg", "theta_o_deg"),
+            "in_plane": ("theta_i_deg", "theta_o_deg"),
+            "rusinkiewicz": ("theta_h_deg", "theta_d_deg", "phi_d_deg"),
+            "list": ("points",),
+        }[self.kind]
+        allowed = set(needed) | {"grid": {"phi_i_deg", "phi_o_deg"}, "rusinkiewicz": {"phi_h_deg"}}.get(
+            self.kind, set()
+        )
+        missing = [k for k in needed if not getattr(self, k)]
+        if missing:
+            raise ValueError(f"a {self.kind!r} sweep needs {', '.join(missing)} (non-empty)")
+        optional = {"theta_i_deg", "theta_o_deg", "phi_i_deg", "phi_o_deg", "theta_h_deg", "theta_d_deg", "phi_d_deg",
+                    "phi_h_deg", "points"}  # fmt: skip
+        stray = [k for k in optional - allowed if getattr(self, k) is not None]
+        if stray:
+            raise ValueError(f"{', '.join(sorted(stray))} has no meaning in a {self.kind!r} sweep")
+        # Counted from the lists' lengths, before a point is generated: a product of long lists would need
+        # gigabytes just to hold the combinations.
+        keys = [k for k in (*needed, *sorted(allowed - set(needed))) if getattr(self, k) is not None]
+        count = math.prod(len(getattr(self, k)) for k in keys)
+        if count > MAX_SWEEP_POINTS:
+            lengths = " x ".join(f"{k} ({len(getattr(self, k))})" for k in keys)
+            raise ValueError(f"{lengths} = {count} points: expected at most {MAX_SWEEP_POINTS} points in a sweep "
+                             "(shorten the lists, or split the sweep into several runs)")  # fmt: skip
+        return self
+
+
+class Capture(Strict):
+    """``[capture]``: how each point is exposed: target SNR, frames, darks, images kept."""
+
+    target_snr: Annotated[float, Field(gt=0, le=1e5)] = 200.0
+    exposures_s: tuple[Seconds, ...] | None = None
+    max_frames: Annotated[int, Field(ge=1, le=64)] = 5
+    dark_frames: Annotated[int, Field(ge=0, le=16)] = 1
+    first_exposure_s: Seconds = 0.01
+    save_images: bool = False
+    include_cosine: bool = False
+
+
+class SweepFile(Strict):
+    """A sweep file: what to measure and how to capture it."""
+
+    name: str = "sweep"
+    metadata: Metadata = Metadata()
+    sweep: Sweep
+    capture: Capture = Capture()

@@ -1,0 +1,1 @@
+"""The measuring loop: guarded moves, readings, reference readings, progress, and the rig left safe on every stop."""
