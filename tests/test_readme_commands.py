@@ -61,7 +61,7 @@ HOW: dict[str, tuple[str, str]] = {
     ".venv/bin/gonio adaptive --rig examples/rig_simulated.toml --out runs/gold-adaptive --budget 100":
         ("dry", "100 captures in 9 rounds, ~35 s; tests/gonio/test_cli.py runs a budget of 12"),
     ".venv/bin/gonio adaptive --resume runs/gold-adaptive":
-        ("dry", "continues the adaptive sweep above, which is not run; tests/rig/run/adaptive/test_adaptive.py resumes one"),
+        ("dry", "continues the adaptive sweep above, not run; tests/rig/run/adaptive/test_adaptive.py resumes one"),
     ".venv/bin/gonio analyze runs/gold-adaptive":
         ("never", "analyses the adaptive sweep above, which is not run (dry), so there is nothing to check it on; "
                   "tests/analysis/test_sources.py analyses one"),

@@ -122,7 +122,7 @@ def test_adaptive_metadata_options_and_their_mistakes(capsys: pytest.CaptureFixt
 
 
 def test_gonio_adaptive_shows_its_rounds_on_a_bar_with_an_eta(monkeypatch, tmp_path, capsys):
-    # The rounds themselves are run_adaptive's (tests/rig/run/adaptive/test_adaptive.py); here: the command's bar over them.
+    # The rounds themselves are run_adaptive's (tests/rig/run/adaptive/test_adaptive.py); here: the command's bar.
     from pathlib import Path
 
     import rig.run.adaptive.sweep as adaptive
