@@ -1,24 +1,25 @@
 """Camera backends by name: what a rig file's ``[camera] backend`` names, found by registration.
 
 A camera backend is registered as a Python entry point in the group ``gonio.cameras`` whose object is a
-:class:`CameraBackend`; gonio's own (``folder``, ``opencv``) are in :mod:`acquisition.cameras.builtin`,
-declared in gonio's ``pyproject.toml``. A lab adds a camera of its own as a separate package the same
-way, without editing gonio (docs/architecture.md). The simulated rig's rendered camera is not among
-them: it comes with the simulated rig backend (``rig.run.backends.base``), since it watches the virtual servos.
+:class:`CameraBackend`; gonio's own (``folder``, ``opencv``, ``gphoto2``, ``genicam``) are in
+:mod:`acquisition.cameras.builtin`, declared in gonio's ``pyproject.toml``. A lab adds a camera of its own as a
+separate package the same way, without editing gonio (docs/architecture.md). The simulated rig's rendered camera
+is not among them: it comes with the simulated rig backend (``rig.run.backends.base``), since it watches the
+virtual servos. Finding, loading and refusing a name is :class:`acquisition.registry.Registry`'s.
 """
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
 from acquisition.cameras import CameraError, ClockLike
 from acquisition.frame import Camera
+from acquisition.registry import Registry
 
 GROUP = "gonio.cameras"
+BUILTIN = ("folder", "opencv", "gphoto2", "genicam")
 
 
 @dataclass(frozen=True)
@@ -41,38 +42,19 @@ class CameraBackend:
     required: tuple[str, ...] = ()
 
 
-def _entry_points() -> dict[str, EntryPoint]:
-    return {ep.name: ep for ep in entry_points(group=GROUP)}
-
-
-@functools.cache
-def _registered() -> dict[str, EntryPoint]:
-    return _entry_points()
+CAMERAS = Registry(GROUP, CameraBackend, "camera backend", CameraError)
 
 
 def names() -> tuple[str, ...]:
     """Every registered camera backend's name, alphabetically."""
-    return tuple(sorted(_registered()))
+    return CAMERAS.names()
 
 
-@functools.cache
 def camera_backend(name: str) -> CameraBackend:
     """The camera backend registered under ``name``; CameraError names the registered ones."""
-    ep = _registered().get(name)
-    if ep is None:
-        raise CameraError(
-            f"no camera backend {name!r} in the entry-point group {GROUP!r}; registered: {', '.join(names()) or 'none'}"
-        )
-    try:
-        found = ep.load()
-    except Exception as exc:  # a broken plugin names itself, whatever it raised
-        raise CameraError(f"camera backend {name!r} ({ep.value}) cannot be loaded: {exc}") from exc
-    if not isinstance(found, CameraBackend):
-        raise CameraError(f"camera backend {name!r} ({ep.value}) is a {type(found).__name__}, not a CameraBackend")
-    return found
+    return CAMERAS.load(name)
 
 
 def reload() -> None:
     """Forget what was looked up (after installing a plugin in a running process, or in tests)."""
-    _registered.cache_clear()
-    camera_backend.cache_clear()
+    CAMERAS.reload()
