@@ -16,9 +16,10 @@ from typing import Any
 
 from acquisition.cameras import CameraError, ClockLike
 from acquisition.frame import Camera
-from acquisition.registry import Registry
+from acquisition.registry import Registry, ordered
 
 GROUP = "gonio.cameras"
+#: gonio's own camera backends, in the order a message names those that read a key (others follow alphabetically).
 BUILTIN = ("folder", "opencv", "gphoto2", "genicam")
 
 
@@ -33,6 +34,8 @@ class CameraBackend:
         keys: the ``[camera]`` keys this backend reads beyond the common ones (exposure range, ROI, noise,
             calibration, flat field); a rig file that sets another backend's key is an error naming it.
             ``"options"`` admits a free ``[camera.options]`` table, for a lab's backend with settings of its own.
+            This is the one list of which backend reads which key: config validation derives its checks from it
+            (the keys' types, bounds and meaning are ``rig.run.config.camera.Camera``'s).
         required: those of ``keys`` a rig file must give.
     """
 
@@ -53,6 +56,18 @@ def names() -> tuple[str, ...]:
 def camera_backend(name: str) -> CameraBackend:
     """The camera backend registered under ``name``; CameraError names the registered ones."""
     return CAMERAS.load(name)
+
+
+def readers(key: str) -> tuple[str, ...]:
+    """The registered camera backends that read ``[camera]`` ``key``, gonio's own first (BUILTIN order)."""
+    found = []
+    for name in names():
+        try:
+            if key in camera_backend(name).keys:
+                found.append(name)
+        except CameraError:
+            continue  # a broken plugin is named when a rig file chooses it, not in another backend's message
+    return ordered(found, BUILTIN)
 
 
 def reload() -> None:

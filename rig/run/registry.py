@@ -35,6 +35,8 @@ class BackendTraits:
         default_axes: True where ``[axes.*]`` may be left out (one XM430-W350 per joint).
         cameras: camera backends only this backend provides (the simulated rig's rendered camera); when
             given, ``[camera] backend`` must be one of them.
+        camera_keys: the ``[camera]`` keys those cameras read beyond the common ones (as
+            ``acquisition.cameras.registry.CameraBackend.keys`` for a registered camera).
         references: reference kinds only this backend provides, beside "manual" and "none".
     """
 
@@ -43,6 +45,7 @@ class BackendTraits:
     needs_port: bool = True
     default_axes: bool = False
     cameras: tuple[str, ...] = ()
+    camera_keys: tuple[str, ...] = ()
     references: tuple[str, ...] = ()
 
     def for_file(self, file: Any) -> BackendTraits:

@@ -38,8 +38,9 @@ from rig.instrument.calibration_file import (
 from rig.instrument.geometry import GeometryError, JointLimits, RigGeometry
 from rig.instrument.links.dynamixel_table import X_SERIES
 from rig.run import registry
-from rig.run.config.schema import AxisTable, RigFile, SweepFile, camera_keys
-from rig.run.config.schema import Camera as CameraTable
+from rig.run.config.camera import Camera as CameraTable
+from rig.run.config.camera import camera_keys
+from rig.run.config.schema import AxisTable, RigFile, SweepFile
 
 FloatArray = npt.NDArray[np.float64]
 M = TypeVar("M", bound=BaseModel)
