@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import difflib
 import errno
 import os
 import re
@@ -22,6 +21,8 @@ import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+
+from model.spelling import did_you_mean
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_HARDWARE, EXIT_CAMERA, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
 # A prompt answered no; a bug (sysexits' EX_SOFTWARE); a file or device failed (EX_IOERR); stdout's reader left.
@@ -37,12 +38,6 @@ EXIT_CODES_HELP = (
 
 class CliError(ValueError):
     """An input error the command line itself finds (an unknown axis, an analysis it would overwrite): exit 2."""
-
-
-def suggestion(word: str, known: list[str] | tuple[str, ...]) -> str:
-    """``"; did you mean 'x'?"`` for the closest of ``known`` to a misspelt ``word``, or ``""``."""
-    close = difflib.get_close_matches(word, list(known), n=1, cutoff=0.6)
-    return f"; did you mean {close[0]!r}?" if close else ""
 
 
 def _input_errors() -> tuple[type[BaseException], ...]:
@@ -192,11 +187,11 @@ class GonioParser(argparse.ArgumentParser):
         bad = re.search(r"invalid choice: '([^']*)'", message)
         if bad:
             choices = [str(c) for a in self._actions if a.choices for c in a.choices]
-            message += suggestion(bad.group(1), choices)
+            message += did_you_mean(bad.group(1), choices)
         elif message.startswith("unrecognized arguments:"):
             known = _option_strings(self)
             for word in message.removeprefix("unrecognized arguments:").split():
-                hint = suggestion(word.split("=", 1)[0], known) if word.startswith("--") else ""
+                hint = did_you_mean(word.split("=", 1)[0], known) if word.startswith("--") else ""
                 if hint:
                     message += f" ({word}: {hint.removeprefix('; ')})"
         super().error(message)

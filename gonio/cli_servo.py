@@ -17,7 +17,8 @@ import sys
 import termios
 from pathlib import Path
 
-from gonio.cli_errors import EXIT_DECLINED, EXIT_HARDWARE, EXIT_OK, CliError, suggestion
+from gonio.cli_errors import EXIT_DECLINED, EXIT_HARDWARE, EXIT_OK, CliError
+from model.spelling import did_you_mean
 from rig.instrument.links.dynamixel_bus import SDK_BAUDRATES, CommunicationError, DynamixelBus
 from rig.instrument.links.dynamixel_table import (
     BAUD_RATE_VALUES,
@@ -112,7 +113,7 @@ def _move(args: argparse.Namespace) -> int:
     names = [a.name for a in rig.axes]
     if args.joint not in names:
         raise CliError(f"joint {args.joint!r}: {rig.path} has no such axis; its axes are {', '.join(names)}"
-                       + suggestion(args.joint, names))  # fmt: skip
+                       + did_you_mean(args.joint, names))  # fmt: skip
     port = args.port or link_cfg.port
     assert port is not None
     _warn_latency(port, link_cfg.latency_timer_ms)

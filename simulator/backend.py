@@ -66,5 +66,5 @@ class SimulatedBackend(RigBackend):
 
 SIMULATED = SimulatedBackend(
     open=_open, addressing="id", needs_port=False, default_axes=True, cameras=("simulated",),
-    references=("simulated",),
+    camera_keys=("resolution", "spp", "variant"), references=("simulated",),
 )  # fmt: skip

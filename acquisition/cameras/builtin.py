@@ -1,7 +1,8 @@
 """gonio's own camera backends as registered in ``gonio.cameras``: tethered folder, OpenCV, gphoto2, GenICam.
 
-Each imports its library when a camera is opened, not when the registry is read. ``keys`` lists the
-``[camera]`` keys each reads (validated in ``rig.run.config.schema.Camera``); a key left out of a rig file
+Each imports its library when a camera is opened, not when the registry is read. ``keys`` (and ``required``)
+are the one list of the ``[camera]`` keys each reads: config validation derives from them which backend may
+set which key (the keys' types and bounds are ``rig.run.config.camera.Camera``'s); a key left out of a rig file
 arrives as None and the backend's own default applies.
 """
 

@@ -1,18 +1,18 @@
 """The registry of rig backends: which names ``[link] kind`` may take, and what each backend's files may say.
 
 Backends are registered as Python entry points in the group ``gonio.backends`` (see :mod:`rig.run.backends.base`
-for what a backend is and how a lab registers its own). This module only finds them and reads their
-traits, which is all that reading a rig file needs; opening one is :mod:`rig.run.backends.base`'s.
+for what a backend is and how a lab registers its own). This module only finds them (through
+:class:`acquisition.registry.Registry`, as the camera backends are found) and reads their traits, which is all
+that reading a rig file needs; opening one is :mod:`rig.run.backends.base`'s.
 """
 
 from __future__ import annotations
 
-import difflib
-import functools
 from collections.abc import Iterable
 from dataclasses import dataclass
-from importlib.metadata import EntryPoint, entry_points
 from typing import Any, Literal
+
+from acquisition.registry import Registry
 
 GROUP = "gonio.backends"
 #: gonio's own backends, in the order error messages list them (others follow alphabetically).
@@ -35,6 +35,8 @@ class BackendTraits:
         default_axes: True where ``[axes.*]`` may be left out (one XM430-W350 per joint).
         cameras: camera backends only this backend provides (the simulated rig's rendered camera); when
             given, ``[camera] backend`` must be one of them.
+        camera_keys: the ``[camera]`` keys those cameras read beyond the common ones (as
+            ``acquisition.cameras.registry.CameraBackend.keys`` for a registered camera).
         references: reference kinds only this backend provides, beside "manual" and "none".
     """
 
@@ -43,6 +45,7 @@ class BackendTraits:
     needs_port: bool = True
     default_axes: bool = False
     cameras: tuple[str, ...] = ()
+    camera_keys: tuple[str, ...] = ()
     references: tuple[str, ...] = ()
 
     def for_file(self, file: Any) -> BackendTraits:
@@ -53,55 +56,24 @@ class BackendTraits:
         return self
 
 
-def ordered(names: Iterable[str]) -> tuple[str, ...]:
-    """Backend names with gonio's own first, in BUILTIN order, then the others alphabetically."""
-    return tuple(sorted(set(names), key=lambda n: (BUILTIN.index(n) if n in BUILTIN else len(BUILTIN), n)))
-
-
 def listing(names: Iterable[str]) -> str:
     """Names as an error message lists them: 'a', 'b' or 'c'."""
     quoted = [repr(n) for n in names]
     return quoted[0] if len(quoted) == 1 else ", ".join(quoted[:-1]) + " or " + quoted[-1]
 
 
-def suggestion(name: str, known: Iterable[str]) -> str:
-    """' (did you mean 'x'?)' for a close match among ``known``, else ''."""
-    close = difflib.get_close_matches(name, list(known), n=1)
-    return f" (did you mean {close[0]!r}?)" if close else ""
-
-
-def _entry_points() -> dict[str, EntryPoint]:
-    return {ep.name: ep for ep in entry_points(group=GROUP)}
-
-
-@functools.cache
-def _registered() -> dict[str, EntryPoint]:
-    return _entry_points()
+BACKENDS = Registry(GROUP, BackendTraits, "rig backend", BackendError, kind_name="RigBackend", first=BUILTIN,
+                    advise=True)  # fmt: skip
 
 
 def names() -> tuple[str, ...]:
     """Every registered rig backend's name, gonio's own first."""
-    return ordered(_registered())
+    return BACKENDS.names()
 
 
-@functools.cache
 def load(name: str) -> BackendTraits:
     """The object registered under ``name`` (a :class:`rig.run.backends.base.RigBackend`); BackendError if none."""
-    ep = _registered().get(name)
-    if ep is None:
-        known = names()
-        hint = " (none is registered: is gonio installed? `pip install -e .`)" if not known else ""
-        raise BackendError(
-            f"no rig backend {name!r} in the entry-point group {GROUP!r}{suggestion(name, known)}; "
-            f"registered: {', '.join(known) or 'none'}{hint}"
-        )
-    try:
-        found = ep.load()
-    except Exception as exc:  # a broken plugin names itself, whatever it raised
-        raise BackendError(f"rig backend {name!r} ({ep.value}) cannot be loaded: {exc}") from exc
-    if not isinstance(found, BackendTraits):
-        raise BackendError(f"rig backend {name!r} ({ep.value}) is a {type(found).__name__}, not a RigBackend")
-    return found
+    return BACKENDS.load(name)
 
 
 def provided_cameras() -> tuple[str, ...]:
@@ -111,5 +83,4 @@ def provided_cameras() -> tuple[str, ...]:
 
 def reload() -> None:
     """Forget what was looked up (after installing a plugin in a running process, or in tests)."""
-    _registered.cache_clear()
-    load.cache_clear()
+    BACKENDS.reload()

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
-import difflib
 import inspect
 import re
 import tomllib
@@ -27,6 +26,7 @@ from pydantic import BaseModel, ValidationError
 
 import model
 from model.base import Model
+from model.spelling import did_you_mean
 from rig.instrument.alignment import Alignment
 from rig.instrument.axis import Axis
 from rig.instrument.calibration_file import (
@@ -38,8 +38,9 @@ from rig.instrument.calibration_file import (
 from rig.instrument.geometry import GeometryError, JointLimits, RigGeometry
 from rig.instrument.links.dynamixel_table import X_SERIES
 from rig.run import registry
-from rig.run.config.schema import AxisTable, RigFile, SweepFile, camera_keys
-from rig.run.config.schema import Camera as CameraTable
+from rig.run.config.camera import Camera as CameraTable
+from rig.run.config.camera import camera_keys
+from rig.run.config.schema import AxisTable, RigFile, SweepFile
 
 FloatArray = npt.NDArray[np.float64]
 M = TypeVar("M", bound=BaseModel)
@@ -114,14 +115,6 @@ def _range(model: type[BaseModel], loc: tuple[int | str, ...]) -> str:
     return f" ({' and '.join(x for x in (lo, hi) if x)})" if lo or hi else ""
 
 
-def _did_you_mean(word: Any, known: list[str]) -> str:
-    """``"; did you mean 'x'?"`` for the closest known name to a misspelt key or value, else ``""``."""
-    if not isinstance(word, str):
-        return ""
-    close = difflib.get_close_matches(word, known, n=1, cutoff=0.6)
-    return f"; did you mean {close[0]!r}?" if close else ""
-
-
 def _clean(loc: tuple[int | str, ...]) -> tuple[int | str, ...]:
     # Union members add their type's name to the path ("constrained-float", "tuple[...]"): not TOML keys.
     return tuple(p for p in loc if isinstance(p, int) or re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", p))
@@ -137,7 +130,7 @@ def _messages(path: Path, model: type[BaseModel], err: ValidationError) -> str:
         key = _key(loc)
         if e["type"] == "extra_forbidden":
             allowed = _allowed_keys(model, loc)
-            hint = _did_you_mean(loc[-1] if loc else None, allowed)
+            hint = did_you_mean(loc[-1] if loc else None, allowed)
             lines.append(f"{path}: {key} = {_short(e['input'])}: unknown key; expected one of {', '.join(allowed)}"
                          f"{hint}")
         elif e["type"] == "missing" and loc and isinstance(loc[-1], int):
@@ -157,7 +150,7 @@ def _messages(path: Path, model: type[BaseModel], err: ValidationError) -> str:
             if e["type"] in _TYPE_ERRORS:
                 text += _range(model, loc)
             if e["type"] == "literal_error":
-                text += _did_you_mean(e["input"], re.findall(r"'([^']*)'", str(e.get("ctx", {}).get("expected", ""))))
+                text += did_you_mean(e["input"], re.findall(r"'([^']*)'", str(e.get("ctx", {}).get("expected", ""))))
             same = [i for i, line in enumerate(lines) if line.startswith(head)]
             if same:  # one key failing every member of a union: say what each member wanted
                 lines[same[0]] += f" or {text}"
@@ -336,7 +329,7 @@ def _axes(path: Path, cfg: RigFile, geometry: RigGeometry) -> tuple[Axis, ...]:
     if unknown:
         raise ConfigError(
             f"{path}: axes.{unknown[0]}: no such joint in layout {geometry.layout!r}; "
-            f"expected one of {', '.join(joints)}{_did_you_mean(unknown[0], list(joints))}"
+            f"expected one of {', '.join(joints)}{did_you_mean(unknown[0], list(joints))}"
         )
     traits = registry.load(cfg.link.kind).for_file(cfg)
     letters = traits.addressing == "letter"
@@ -519,7 +512,7 @@ def _material(cfg: RigFile, path: Path) -> Model:
                        and issubclass(getattr(model, n), Model) and getattr(model, n) is not Model)  # fmt: skip
         raise ConfigError(
             f"{path}: simulation.material.model = {table.model!r}: expected one of {', '.join(names)}"
-            f"{_did_you_mean(table.model, names)}"
+            f"{did_you_mean(table.model, names)}"
         )
     given = table.parameters()
     accepted = _parameters(cls)
@@ -528,7 +521,7 @@ def _material(cfg: RigFile, path: Path) -> Model:
         if key not in accepted:
             raise ConfigError(
                 f"{where}.{key} = {_short(_plain(value))}: {cls.__name__} has no parameter {key!r}; its parameters "
-                f"are {', '.join(accepted) or 'none'}{_did_you_mean(key, list(accepted))}"
+                f"are {', '.join(accepted) or 'none'}{did_you_mean(key, list(accepted))}"
             )
     missing = [k for k, required in accepted.items() if required and k not in given]
     if missing:

@@ -1,18 +1,17 @@
 """The schema of rig and sweep files (TOML): every table, key, type, unit and default, validated strictly.
 
-Unknown keys are errors (``extra="forbid"``), types are not coerced (a string is never a number), and
-numbers carry their bounds here, where they are defined. ``rig.run.config.files`` loads files against these models
-and turns pydantic's errors into messages that name the file, the key, the value and what was expected.
+Unknown keys are errors, types are not coerced (a string is never a number), and numbers carry their bounds
+where they are defined (``rig.run.config.strict``: the base of every table, the bounded number types).
+``rig.run.config.files`` loads files against these models and turns pydantic's errors into messages that name
+the file, the key, the value and what was expected.
 
 Rig file tables: ``[geometry]`` (and ``[geometry.limits]``), ``[link]``, ``[axes.<joint>]``, ``[camera]``
-(``[camera.noise]``, ``[camera.options]``), ``[reference]``, ``[simulation]`` (``[simulation.material]``,
-``[simulation.sensor]``, ``[simulation.misalignment]``). Sweep file tables:
-``[sweep]`` and ``[capture]``. Both files may have ``[metadata]`` (``sample``, ``operator``, ``notes`` and free
-keys), which a run carries into its manifest, its tables and the report. See examples/*.toml for annotated files.
-
-One file past 400 lines on purpose: it is the whole schema of the two file kinds, so a key is checked
-against one place (and the docs' key tables are read from here); the simulation's tables sit beside the
-rig file's because the simulator reads them through the same validation.
+(``[camera.noise]``, ``[camera.options]``; in ``rig.run.config.camera``, which says where the keys each camera
+backend reads are written), ``[reference]``, ``[simulation]`` (``[simulation.material]``,
+``[simulation.sensor]``, ``[simulation.misalignment]``; the simulator reads them through this validation).
+Sweep file tables: ``[sweep]`` and ``[capture]``. Both files may have ``[metadata]`` (``sample``, ``operator``,
+``notes`` and free keys), which a run carries into its manifest, its tables and the report. See
+examples/*.toml for annotated files.
 """
 
 from __future__ import annotations
@@ -20,48 +19,24 @@ from __future__ import annotations
 import math
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
-from pydantic_core import PydanticCustomError
+from pydantic import ConfigDict, Field, field_validator, model_validator
 
-from acquisition.cameras import CameraError
-from acquisition.cameras import registry as cameras
-from acquisition.cameras.trigger import check_callable, check_command
 from rig.run import registry
-
-# Upper bounds far beyond any instrument (a kilometre, a day, a billion electrons): they keep the arithmetic
-# that follows finite, so an absurd value is a named error here instead of an overflow somewhere later.
-Pos = Annotated[float, Field(gt=0, le=1e9, allow_inf_nan=False)]
-NonNeg = Annotated[float, Field(ge=0, le=1e9, allow_inf_nan=False)]
-Finite = Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)]
-Metres = Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]
-Seconds = Annotated[float, Field(gt=0, le=86400, allow_inf_nan=False)]
-Levels = Annotated[float, Field(ge=0, le=2**32, allow_inf_nan=False)]
-#: A seed numpy, the simulated sensor and Mitsuba's sampler (a uint32) all take.
-Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
-Deg90 = Annotated[float, Field(ge=0, le=90, allow_inf_nan=False)]
-Pair = tuple[Finite, Finite]
-Channels = (
-    Annotated[float, Field(gt=0, le=1)]
-    | tuple[
-        Annotated[float, Field(gt=0, le=1)], Annotated[float, Field(gt=0, le=1)], Annotated[float, Field(gt=0, le=1)]
-    ]
+from rig.run.config.camera import Camera
+from rig.run.config.strict import (
+    Channels,
+    Deg90,
+    Finite,
+    Levels,
+    Metres,
+    NonNeg,
+    Pair,
+    Pos,
+    Seconds,
+    Seed,
+    Strict,
+    one_of,
 )
-
-
-def _tuples(value: Any) -> Any:
-    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
-
-
-class Strict(BaseModel):
-    """Base of every table: unknown keys are errors, values are not coerced, models are frozen."""
-
-    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
-
-    @model_validator(mode="before")
-    @classmethod
-    def _arrays_as_tuples(cls, data: Any) -> Any:
-        # TOML arrays arrive as lists; strict mode takes only tuples for the fixed-length and frozen fields.
-        return {k: _tuples(v) for k, v in data.items()} if isinstance(data, dict) else data
 
 
 class Limits(Strict):
@@ -96,13 +71,6 @@ class Geometry(Strict):
     calibration: str | None = None
 
 
-def _one_of(value: str, known: tuple[str, ...]) -> str:
-    # Worded as pydantic words a Literal, so the message reads like every other key's.
-    if value not in known:
-        raise PydanticCustomError("literal_error", "Input should be {expected}", {"expected": registry.listing(known)})
-    return value
-
-
 class Link(Strict):
     """``[link]``: how the controller reaches the servos, and what it does when it stops.
 
@@ -128,7 +96,7 @@ class Link(Strict):
     @field_validator("kind")
     @classmethod
     def _registered(cls, value: str) -> str:
-        return _one_of(value, registry.names())
+        return one_of(value, registry.names())
 
     @model_validator(mode="after")
     def _port_for_hardware(self) -> Link:
@@ -165,154 +133,6 @@ class AxisTable(Strict):
         if (self.id is None) == (self.letter is None):
             raise ValueError("give exactly one of id (a Dynamixel id) or letter (a GRBL axis)")
         return self
-
-
-class Noise(Strict):
-    """``[camera.noise]``: the sensor's gain (e-/DN), noise (e-), dark current (e-/s) and levels (DN)."""
-
-    # A gain of 1e-3 e-/DN to 1e5 e-/DN spans every sensor there is; beyond it the noise model's sums overflow.
-    e_per_dn: Annotated[float, Field(ge=1e-3, le=1e5, allow_inf_nan=False)] = 4.0
-    read_noise_e: Annotated[float, Field(ge=0, le=1e6, allow_inf_nan=False)] = 3.0
-    dark_current_e_per_s: Annotated[float, Field(ge=0, le=1e9, allow_inf_nan=False)] = 0.5
-    black_level_dn: Levels = 512.0
-    white_level_dn: Annotated[float, Field(gt=0, le=2**32, allow_inf_nan=False)] = 16383.0
-    full_well_e: Annotated[float, Field(gt=0, le=1e9, allow_inf_nan=False)] = 60000.0
-
-
-#: [camera] keys every backend reads; the others belong to one backend or a few (``CameraBackend.keys``).
-COMMON_CAMERA_KEYS = ("backend", "min_exposure_s", "max_exposure_s", "overhead_s", "roi", "noise", "calibration",
-                      "flat_field", "capture_timeout_s")  # fmt: skip
-#: The keys of the camera that comes with the simulated rig.
-SIMULATED_CAMERA_KEYS = ("resolution", "spp", "variant")
-
-
-class Camera(Strict):
-    """``[camera]``: the camera backend, its exposure range (s), ROI (pixels), noise and calibration files.
-
-    ``backend`` names a registered camera backend (``gonio.cameras``: folder, opencv, gphoto2, genicam, or a
-    lab's own) or one that comes with the rig backend (the simulated rig's "simulated"). Besides the common
-    keys each backend reads its own (``acquisition.cameras.builtin``): folder: folder, trigger (a command
-    as a list of arguments with {exposure_s}-style placeholders, or "module:function"), trigger_timeout_s,
-    pattern, timeout_s, poll_interval_s, stable_polls, settle_s, accept_unconfirmed_exposure; opencv:
-    device (index, device path, video file or image-sequence pattern), api, discard_frames, strict; gphoto2:
-    port ("usb:001,004", "disk:/path"), model, download_dir, keep_on_camera; genicam: cti_file (the GenTL
-    producer), serial_number, index, discard_frames, timeout_s, pixel_format; simulated: resolution, spp,
-    variant. A key of another backend is an error naming whose it is. ``calibration`` and ``flat_field`` are
-    files written by ``gonio calibrate camera`` (relative to the rig file).
-    """
-
-    backend: str = "simulated"
-    min_exposure_s: Seconds = 1e-5
-    max_exposure_s: Seconds = 30.0
-    overhead_s: Annotated[float, Field(ge=0, le=3600, allow_inf_nan=False)] = 0.0
-    #: Wall seconds a capture may take beyond twice its exposure before the run stops on a camera fault.
-    capture_timeout_s: Annotated[float, Field(gt=0, le=3600)] = 60.0
-    roi: tuple[int, int, int, int] | None = None
-    noise: Noise = Noise()
-    calibration: str | None = None
-    flat_field: str | None = None
-    # simulated
-    resolution: tuple[Annotated[int, Field(ge=8, le=8192)], Annotated[int, Field(ge=8, le=8192)]] = (32, 32)
-    spp: Annotated[int, Field(ge=1, le=4096)] = 4
-    variant: str | None = None
-    # folder
-    folder: str | None = None
-    trigger: tuple[str, ...] | str | None = None
-    trigger_timeout_s: Seconds | None = None
-    pattern: tuple[str, ...] | None = None
-    poll_interval_s: Annotated[float, Field(gt=0, le=60)] | None = None
-    stable_polls: Annotated[int, Field(ge=1, le=100)] | None = None
-    settle_s: Annotated[float, Field(ge=0, le=3600, allow_inf_nan=False)] | None = None
-    accept_unconfirmed_exposure: bool | None = None
-    # opencv
-    device: Annotated[int, Field(ge=0, le=65535)] | str | None = None
-    api: Literal["any", "v4l2", "images", "ffmpeg", "gstreamer"] | None = None
-    strict: bool | None = None
-    # gphoto2
-    port: str | None = None
-    model: str | None = None
-    download_dir: str | None = None
-    keep_on_camera: bool | None = None
-    # genicam
-    cti_file: str | None = None
-    serial_number: str | None = None
-    index: Annotated[int, Field(ge=0, le=65535)] | None = None
-    pixel_format: str | None = None
-    # more than one backend
-    timeout_s: Annotated[float, Field(gt=0, le=3600)] | None = None
-    discard_frames: Annotated[int, Field(ge=0, le=64)] | None = None
-    options: dict[str, Any] | None = None
-
-    @field_validator("backend")
-    @classmethod
-    def _registered(cls, value: str) -> str:
-        return _one_of(value, registry.provided_cameras() + cameras.names())
-
-    @field_validator("trigger")
-    @classmethod
-    def _trigger(cls, value: tuple[str, ...] | str | None) -> tuple[str, ...] | str | None:
-        if isinstance(value, str):
-            check_callable(value)
-        elif value is not None:
-            check_command(value)
-        return value
-
-    @model_validator(mode="after")
-    def _consistent(self) -> Camera:
-        if self.min_exposure_s >= self.max_exposure_s:
-            raise ValueError(f"min_exposure_s {self.min_exposure_s!r} must be below max_exposure_s")
-        keys, required = _backend_keys(self.backend)
-        stray = sorted(set(self.model_fields_set) - set(COMMON_CAMERA_KEYS) - set(keys))
-        if stray:
-            whose = _owners(stray[0])
-            raise ValueError(
-                f"camera.{stray[0]} = {_shown(getattr(self, stray[0]))}: the {self.backend!r} camera backend does "
-                f"not read this key{f' ({whose})' if whose else ''}; it reads "
-                f"{', '.join(keys) or 'only the common keys'} besides {', '.join(COMMON_CAMERA_KEYS[1:])}"
-            )
-        missing = [k for k in required if getattr(self, k) in (None, "")]
-        if missing:
-            hint = f": {_HINTS[missing[0]]}" if missing[0] in _HINTS else ""
-            raise ValueError(f"the {self.backend} camera backend needs {', '.join(missing)}{hint}")
-        return self
-
-
-def _backend_keys(backend: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """The [camera] keys a registered backend reads beyond the common ones, and those it needs."""
-    if backend in registry.provided_cameras():
-        return SIMULATED_CAMERA_KEYS, ()
-    found = cameras.camera_backend(backend)
-    return found.keys, found.required
-
-
-def camera_keys(backend: str) -> tuple[str, ...] | None:
-    """Every [camera] key ``backend`` reads (the common ones included), None for a backend not registered."""
-    try:
-        return COMMON_CAMERA_KEYS + _backend_keys(backend)[0]
-    except CameraError:
-        return None
-
-
-_HINTS = {
-    "folder": "the directory the tethering software writes to",
-    "cti_file": "the GenTL producer (.cti file) of the camera's vendor",
-}
-
-
-def _shown(value: Any) -> str:
-    return repr(list(value) if isinstance(value, tuple) else value)
-
-
-def _owners(key: str) -> str:
-    """Which of gonio's camera backends read ``key``, for an error message."""
-    from acquisition.cameras import builtin
-
-    gonio_own = {"folder": builtin.FOLDER, "opencv": builtin.OPENCV, "gphoto2": builtin.GPHOTO2,
-                 "genicam": builtin.GENICAM}  # fmt: skip
-    owners = [name for name, b in gonio_own.items() if key in b.keys]
-    if key in SIMULATED_CAMERA_KEYS:
-        owners.append("simulated")
-    return f"{' and '.join(owners)} read{'s' if len(owners) == 1 else ''} it" if owners else ""
 
 
 class Reference(Strict):

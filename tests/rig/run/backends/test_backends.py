@@ -80,11 +80,11 @@ LAB_CAMERA = CameraBackend(_open_lab_camera, "a lab's own camera")
 @pytest.fixture
 def lab_plugins(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
     """Register LAB_STAGE under gonio.backends and LAB_CAMERA under gonio.cameras beside gonio's own."""
-    rigs, cams = registry._entry_points(), camera_registry._entry_points()
+    rigs, cams = registry.BACKENDS.entry_points(), camera_registry.CAMERAS.entry_points()
     rigs["lab_stage"] = EntryPoint("lab_stage", f"{HERE}:LAB_STAGE", registry.GROUP)
     cams["lab_cam"] = EntryPoint("lab_cam", f"{HERE}:LAB_CAMERA", camera_registry.GROUP)
-    monkeypatch.setattr(registry, "_entry_points", lambda: rigs)
-    monkeypatch.setattr(camera_registry, "_entry_points", lambda: cams)
+    monkeypatch.setattr(registry.BACKENDS, "entry_points", lambda: rigs)
+    monkeypatch.setattr(camera_registry.CAMERAS, "entry_points", lambda: cams)
     registry.reload()
     camera_registry.reload()
     yield
@@ -128,8 +128,8 @@ def test_a_lab_camera_registered_elsewhere_is_selectable_and_opened(lab_plugins:
 
 
 def test_a_broken_plugin_names_itself(monkeypatch: pytest.MonkeyPatch) -> None:
-    rigs = {**registry._entry_points(), "broken": EntryPoint("broken", "no_such_module_here:X", registry.GROUP)}
-    monkeypatch.setattr(registry, "_entry_points", lambda: rigs)
+    rigs = {**registry.BACKENDS.entry_points(), "broken": EntryPoint("broken", "no_such_module_here:X", registry.GROUP)}
+    monkeypatch.setattr(registry.BACKENDS, "entry_points", lambda: rigs)
     registry.reload()
     try:
         with pytest.raises(registry.BackendError, match=r"rig backend 'broken' \(no_such_module_here:X\) cannot be"):
