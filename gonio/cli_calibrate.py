@@ -130,6 +130,12 @@ def _geometry(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _add_rig_and_out(parser: argparse.ArgumentParser, written: str) -> None:
+    """What every calibration takes alike: the rig of --rig, and --out, the folder it writes ``written`` into."""
+    add_rig_option(parser)
+    parser.add_argument("--out", default=".", help=f"folder for {written} (default: .)")
+
+
 def add_calibrate_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``gonio calibrate`` and its subcommands."""
     cal = sub.add_parser("calibrate", help="calibrate the instrument (camera: photon transfer; geometry: alignment)",
@@ -144,8 +150,7 @@ def add_calibrate_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser
         "flat_field.npz and photon_transfer.png; a rig file uses them as [camera] calibration and flat_field.",
         epilog="Example: gonio calibrate camera --rig examples/rig_simulated_raw.toml --out calib/",
     )  # fmt: skip
-    add_rig_option(camera)
-    camera.add_argument("--out", default=".", help="folder for camera_calibration.json and the rest (default: .)")
+    _add_rig_and_out(camera, "camera_calibration.json and the rest")
     camera.add_argument("--steps", type=int, default=32,
                         help="exposures of the photon-transfer series, two flats and two darks each (default 32)")
     camera.add_argument("--flat-frames", type=int, default=16,
@@ -161,8 +166,7 @@ def add_calibrate_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser
         "Writes geometry_calibration.json; a rig file applies it with [geometry] calibration = \"...\".",
         epilog="Example: gonio calibrate geometry --rig examples/rig_simulated.toml --out calib/",
     )  # fmt: skip
-    add_rig_option(geometry)
-    geometry.add_argument("--out", default=".", help="folder for geometry_calibration.json (default: .)")
+    _add_rig_and_out(geometry, "geometry_calibration.json")
     geometry.add_argument("--captures", type=int, default=30,
                           help="captures: half see the board, half the lamp's mirror (default 30; with 24 a "
                           "glossy sample's fit was 2x a perfect rig's error, with 30 1.0x)")  # fmt: skip

@@ -148,6 +148,12 @@ def _demo(args: argparse.Namespace) -> int:
     return run_demo(Path(args.out), points=args.points, progress=not args.quiet)
 
 
+def _add_sweep_and_rig(parser: argparse.ArgumentParser) -> None:
+    """What ``gonio run`` and ``gonio plan`` take alike: a sweep file, on the rig of --rig."""
+    parser.add_argument("sweep", help="sweep file (TOML)")
+    add_rig_option(parser)
+
+
 def add_run_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``gonio run``, ``plan``, ``resume`` and ``demo``."""
     run = add_command(
@@ -158,8 +164,7 @@ def add_run_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "2 bad input, 3 hardware fault, 4 camera fault, 130 interrupted.",
         epilog="Example: gonio run examples/sweep_in_plane.toml --rig examples/rig_simulated.toml --out runs/gold",
     )  # fmt: skip
-    run.add_argument("sweep", help="sweep file (TOML)")
-    add_rig_option(run)
+    _add_sweep_and_rig(run)
     run.add_argument("--out", help="run directory to create (default: runs/<sweep>-<date>-<time>)")
     add_quiet_option(run)
     plan = add_command(
@@ -168,8 +173,7 @@ def add_run_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "reasons, order the rest for the least move time and estimate the run time.",
         epilog="Example: gonio plan examples/sweep_grid.toml --rig examples/rig_simulated.toml --list",
     )  # fmt: skip
-    plan.add_argument("sweep", help="sweep file (TOML)")
-    add_rig_option(plan)
+    _add_sweep_and_rig(plan)
     plan.add_argument("--list", action="store_true", help="also list every point in run order with its joints")
     add_quiet_option(plan, "no progress bar (shown on stderr for a plan of more than 10000 points)")
     resume = add_command(
