@@ -23,21 +23,12 @@ lint: $(STAMP)
 test: lint
 	$(BIN)/pytest
 
+# In the order `make bench` runs them; each rewrites its own section of docs/benchmarks.md.
+BENCHMARKS := model_throughput model_tradeoffs hdr exposure_plan bus_latency simulator sweep fit batch analyze \
+              tabulated camera_calibration "geometry_calibration --rigs 8" calibration_payoff
+
 bench: $(STAMP)
-	$(BIN)/python -m bench.model_throughput
-	$(BIN)/python -m bench.model_tradeoffs
-	$(BIN)/python -m bench.hdr
-	$(BIN)/python -m bench.exposure_plan
-	$(BIN)/python -m bench.bus_latency
-	$(BIN)/python -m bench.simulator
-	$(BIN)/python -m bench.sweep
-	$(BIN)/python -m bench.fit
-	$(BIN)/python -m bench.batch
-	$(BIN)/python -m bench.analyze
-	$(BIN)/python -m bench.tabulated
-	$(BIN)/python -m bench.camera_calibration
-	$(BIN)/python -m bench.geometry_calibration --rigs 8
-	$(BIN)/python -m bench.calibration_payoff
+	for b in $(BENCHMARKS); do $(BIN)/python -m bench.$$b || exit 1; done
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

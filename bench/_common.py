@@ -1,11 +1,14 @@
-"""Helpers benchmarks share: the machine description, wall-clock timers, tables, random directions.
+"""Helpers benchmarks share: the machine description, wall-clock timers, tables, random directions, the record.
 
 Tables are plain text for the terminal (``format_table``) or markdown for the docs (``markdown_table``);
-``write_section`` rewrites one benchmark's section of docs/benchmarks.md.
+``write_section`` rewrites one benchmark's section of docs/benchmarks.md, ``publish`` does and says so, and
+``record`` writes it with the heading, command and machine lines every section opens with.
 """
 
 from __future__ import annotations
 
+import argparse
+import datetime
 import os
 import platform
 import re
@@ -13,6 +16,7 @@ import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,8 +24,14 @@ import numpy as np
 from analysis.tables import format_table as format_table
 from analysis.tables import markdown_table as markdown_table
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 #: Where benchmarks write figures unless told otherwise (git-ignored).
 DEFAULT_OUT = Path("out/bench")
+
+#: The page that records every benchmark's latest figures, a section each.
+BENCHMARKS_MD = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 
 
 def _cpuinfo_field(name: str) -> str | None:
@@ -107,6 +117,41 @@ def write_section(path: Path, name: str, body: str) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(text)
     tmp.replace(path)
+
+
+def bench_parser(doc: str) -> argparse.ArgumentParser:
+    """A benchmark's command line, described by the first line of its ``doc``, with --no-docs."""
+    parser = argparse.ArgumentParser(description=doc.split("\n")[0])
+    parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/benchmarks.md")
+    return parser
+
+
+def record(name: str, title: str, options: str, machine: str, *paragraphs: str) -> None:
+    """Write benchmark ``name``'s section of docs/benchmarks.md and say so on stdout.
+
+    The section opens with ``title``, the command (``python -m bench.<name>`` and its ``options`` as run), today's
+    date and the ``machine`` line; ``paragraphs`` (text, tables) follow, a blank line between each.
+    """
+    head = (f"## {title} (`bench/{name}.py`)\n\n"
+            f"Command: `.venv/bin/python -m bench.{name}{options}`. Run on {datetime.date.today()}.\n"
+            f"Machine: {machine}")  # fmt: skip
+    publish(name, "\n\n".join([head, *paragraphs]))
+
+
+def publish(name: str, body: str) -> None:
+    """Write ``body`` as benchmark ``name``'s section of docs/benchmarks.md and say so on stdout."""
+    write_section(BENCHMARKS_MD, name, body)
+    print(f"\nSection '{name}' written to {BENCHMARKS_MD}")
+
+
+def save_figure(fig: Figure, path: Path, dpi: int = 110) -> None:
+    """Lay out matplotlib figure ``fig``, write it to ``path`` (its folder made if missing) and close it."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
 
 
 def load_average() -> str:

@@ -31,6 +31,7 @@ import model as m
 from acquisition.exposure.plan import fixed_bracket
 from acquisition.hdr.merge import merge_linear
 from acquisition.roi import reduce_roi
+from bench._common import save_figure
 from model.base import Model
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints, RigPose, forward, inverse, require, world_pose
@@ -325,7 +326,4 @@ def plot(path: Path, dials: list[Dial], sweeps: list[SweepResult]) -> None:
     ax[1, 1].set_title(f"Simulated sweep of {sweeps[0].points} points, wall time per point", fontsize=10)
     for a in ax.flat:
         a.legend(fontsize=6)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)

@@ -31,7 +31,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench._common import format_table, installed_env, machine_description, markdown_table, write_section
+from bench._common import BENCHMARKS_MD, format_table, installed_env, machine_description, markdown_table, write_section
 
 ROOT = Path(__file__).resolve().parent.parent
 GONIO = Path(sys.executable).with_name("gonio")
@@ -150,7 +150,7 @@ def main(argv: list[str] | None = None) -> None:
         "existed). Default ladder, PNG figures only (`--svg` adds the SVGs), default `--jobs` (the cores, here 2). "
         + pyc + ".",
     ])  # fmt: skip
-    write_section(ROOT / "docs" / "benchmarks.md", "analyze", body)
+    write_section(BENCHMARKS_MD, "analyze", body)
 
 
 if __name__ == "__main__":

@@ -37,9 +37,8 @@ from typing import Any
 from analysis.analyze import analyze
 from analysis.batch.analyze_batch import batch_analyze
 from analysis.batch.cluster import ClusterSettings, cluster_client
-from bench._common import DEFAULT_OUT, format_table, machine_description, markdown_table, write_section
+from bench._common import BENCHMARKS_MD, DEFAULT_OUT, format_table, machine_description, markdown_table, write_section
 
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 GOLD = {"eta": [0.18, 0.42, 1.37], "k": [3.42, 2.35, 1.77]}
 COPPER = {"eta": [0.27, 0.68, 1.22], "k": [3.61, 2.63, 2.29]}
 ALUMINIUM = {"eta": [1.66, 0.88, 0.52], "k": [9.22, 6.27, 4.84]}
@@ -232,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
             f"would become the bottleneck only near {cpu / noop_s:.0f} workers. Most of a task is the report (its "
             "figures are drawn by matplotlib), not the fit (second table).\n"
         )  # fmt: skip
-        write_section(DOCS, "batch", body)
+        write_section(BENCHMARKS_MD, "batch", body)
     return 0
 
 

@@ -23,15 +23,21 @@ Run: ``.venv/bin/python -m bench.bus_latency [--reps N] [--no-docs]``.
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import statistics
 import time
-from pathlib import Path
 
 import dynamixel_sdk as sdk
 
-from bench._common import format_table, load_average, machine_description, markdown_table, timed_calls, write_section
+from bench._common import (
+    bench_parser,
+    format_table,
+    load_average,
+    machine_description,
+    markdown_table,
+    record,
+    timed_calls,
+)
 from rig.instrument.axis import Axis
 from rig.instrument.clock import ManualClock
 from rig.instrument.geometry import RigGeometry
@@ -42,7 +48,6 @@ from rig.run.config.files import default_axes
 from simulator.dynamixel import open_virtual_bus
 from simulator.grbl.server import open_virtual_grbl
 
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 BAUD = 1_000_000
 GRBL_BAUD = 115_200
 IDS = (1, 2, 3, 4)
@@ -188,9 +193,8 @@ HEADERS = ["exchange", "min ms", "median ms", "max ms", "wire ms (anchor)", "rat
 
 def main() -> None:
     """Measure, print and record the bus latencies."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = bench_parser(__doc__)
     parser.add_argument("--reps", type=int, default=1000, help="timed repetitions per exchange (default 1000)")
-    parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/benchmarks.md")
     args = parser.parse_args()
     machine = machine_description()
     today = datetime.date.today().isoformat()
@@ -201,22 +205,15 @@ def main() -> None:
           "ratio = measured median / wire time of the same bytes\n")  # fmt: skip
     print(format_table(HEADERS, rows))
     if not args.no_docs:
-        body = "\n".join([
-            "## Bus latency (`bench/bus_latency.py`)",
-            "",
-            f"Command: `.venv/bin/python -m bench.bus_latency --reps {args.reps}`. Run on {today}.",
-            f"Machine: {machine}; shared with other work, {load}.",
-            "",
+        record(
+            "bus_latency", "Bus latency", f" --reps {args.reps}", f"{machine}; shared with other work, {load}.",
             "Virtual buses on a pty, the real `dynamixel_sdk` and pyserial as clients. Anchor: the wire time of the "
             f"same packets at the line's baud rate (10 bits per byte, zero return delay). Dynamixel at {BAUD} baud, "
             f"GRBL at {GRBL_BAUD}. A ratio below 1 means the software costs less than the line itself would. "
             "reads/transaction: the SDK's `readPort` calls per transaction (the raw SDK's port spins with a zero "
             "timeout; `DynamixelBus` waits in select()). lost: transactions without a valid reply.",
-            "",
             markdown_table(HEADERS, rows),
-        ])  # fmt: skip
-        write_section(DOCS, "bus_latency", body)
-        print(f"\nSection 'bus_latency' written to {DOCS}")
+        )  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -23,20 +23,18 @@ from __future__ import annotations
 
 import argparse
 import datetime
-from pathlib import Path
 
 import numpy as np
 
 from acquisition.exposure.spec import CameraTiming
 from acquisition.hdr.merge import merge_linear
-from bench._common import format_table, machine_description, markdown_table, write_section
+from bench._common import BENCHMARKS_MD, format_table, machine_description, markdown_table, write_section
 from rig.instrument.clock import ManualClock
 from rig.run.calibrate import CalibrationSettings, calibrate_camera
 from simulator.camera.pixels import SensorTruth
 from simulator.camera.simulated import CameraOptics, SimulatedCamera
 from simulator.camera.view import SimulatedFlatSource
 
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 RESOLUTION = (64, 48)
 STEPS = (8, 16, 32, 64)
 
@@ -146,7 +144,7 @@ def main() -> None:
         f"(max) of that frame's photon noise over {summary['flat_sensors']:.0f} sensors. "
         "Command: `.venv/bin/python -m bench.camera_calibration`.",
     ])  # fmt: skip
-    write_section(DOCS, "camera_calibration", body)
+    write_section(BENCHMARKS_MD, "camera_calibration", body)
 
 
 if __name__ == "__main__":

@@ -32,7 +32,7 @@ from acquisition.exposure.plan import evaluate_plan, fixed_bracket, plan_exposur
 from acquisition.exposure.snr import roi_snr
 from acquisition.exposure.spec import CameraTiming, ExposurePlan, RoiLevel
 from acquisition.noise import SensorNoise
-from bench._common import DEFAULT_OUT, format_table, machine_description, markdown_table, write_section
+from bench._common import DEFAULT_OUT, format_table, machine_description, markdown_table, publish, save_figure
 
 Array = npt.NDArray[np.float64]
 
@@ -45,7 +45,6 @@ TARGETS = (30.0, 100.0, 300.0, 1000.0, 3000.0, 10000.0)
 DIM_PEAK = 400.0  # counts/s: 30 s would be needed for the metered frame
 DIM_CAMERA = CameraTiming(min_exposure_s=1e-5, max_exposure_s=1.0, overhead_s=OVERHEAD_S)
 DIM_TARGETS = (100.0, 300.0, 1000.0)
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 
 
 def roi_rates(peak: float, seed: int = 0) -> Array:
@@ -166,10 +165,7 @@ def plot(path: Path, res: Result) -> None:
     ax.set(xscale="log", yscale="log", xlabel="total exposure time (s)", ylabel="SNR of the ROI mean (20x20 px)",
            title="Exposure planning: ROI SNR against exposure time")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def _fill(text: str) -> str:
@@ -273,8 +269,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     seconds = time.perf_counter() - t0
     print(f"\nFigure: {path}  ({seconds:.1f} s)")
     if not args.no_docs:
-        write_section(DOCS, "exposure_plan", docs_section(res, args.reps, seconds, machine))
-        print(f"Section 'exposure_plan' written to {DOCS}")
+        publish("exposure_plan", docs_section(res, args.reps, seconds, machine))
 
 
 if __name__ == "__main__":

@@ -18,8 +18,6 @@ Run: ``.venv/bin/python -m bench.first_reading [--no-docs]``.
 
 from __future__ import annotations
 
-import argparse
-import datetime
 import json
 import os
 import subprocess
@@ -29,15 +27,15 @@ import time
 from pathlib import Path
 
 from bench._common import (
+    bench_parser,
     format_table,
     installed_env,
     load_average,
     machine_description,
     markdown_table,
-    write_section,
+    record,
 )
 
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 RIG = Path(__file__).resolve().parent.parent / "examples" / "rig_simulated.toml"
 GOAL_S = 2.0
 SWEEP = """name = "first reading"
@@ -109,8 +107,7 @@ def interpreter_start(env: dict[str, str]) -> float:
 
 def main() -> None:
     """Measure cold and warm, print and record."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/benchmarks.md")
+    parser = bench_parser(__doc__)
     args = parser.parse_args()
     machine = machine_description()
     print(machine, flush=True)
@@ -148,25 +145,21 @@ def main() -> None:
         print("(PYTHONDONTWRITEBYTECODE was set in this shell; the runs were given Python's bytecode cache)")
     if args.no_docs:
         return
-    body = "\n".join([
-        "## First reading (`bench/first_reading.py`)", "",
-        f"Command: `.venv/bin/python -m bench.first_reading`. Run on {datetime.date.today()}.",
-        f"Machine: {machine}, shared with other work (load averages in the table).", "",
+    record(
+        "first_reading", "First reading", "", f"{machine}, shared with other work (load averages in the table).",
         "`gonio run` of 4 points on the simulated rig (`examples/rig_simulated.toml`, its 4 x 4 px ROI; then the "
         "same rig with a 64 x 64 px ROI, whose frames the merge takes in numba's compiled passes, with caches of "
         "its own), from launch to the first journal record (the reference reading before the first point) and to "
         "the first point. Cold: empty numba and Dr.Jit kernel caches; warm: the same caches after the cold run. "
         "All runs may write and read Python's bytecode cache, as an installed gonio does"
         f"{' (this shell set PYTHONDONTWRITEBYTECODE; the runs did not inherit it)' if bytecode_off else ''}. "
-        f"Anchor: `python -c 'import numpy'` in the same environment, {anchor:.2f} s.", "",
-        markdown_table(head, rows), "",
+        f"Anchor: `python -c 'import numpy'` in the same environment, {anchor:.2f} s.",
+        markdown_table(head, rows),
         f"First reading on a warm cache: **{warm:.1f} s** against the goal of {GOAL_S:g} s (ratio "
         f"{warm / GOAL_S:.2f}; {rows[1][-1]} before the run). The merge's one-time compilation, where frames are "
         f"larger than an ROI crop: {compile_s:.1f} s (cold minus warm first reading, 64 x 64 ROI), after the notice "
         f"'compiling kernels (first run only)' (shown cold: {rows[2][5]}; warm: {rows[3][5]}).",
-    ])  # fmt: skip
-    write_section(DOCS, "first_reading", body)
-    print(f"\nSection 'first_reading' written to {DOCS}")
+    )  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -26,11 +26,11 @@ import dataclasses
 import datetime
 import os
 from functools import partial
-from pathlib import Path
 
 import numpy as np
 
 from bench._common import (
+    BENCHMARKS_MD,
     best_time,
     format_table,
     machine_description,
@@ -44,7 +44,6 @@ from model.base import Model
 from model.fit.solve import FitResult, FitSpec, Samples, fit, ggx_conductor, lambert_ggx, ward_anisotropic
 from model.merl import MerlTable
 
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 GOAL_S = 1.0
 MERL_GOAL_S = 30.0
 MERL_SPEC = ggx_conductor(rho_d=True).shared("eta", "k")
@@ -148,7 +147,7 @@ def main(argv: list[str] | None = None) -> None:
         "6-parameter fit of 10,000 samples in under 1 s; the anchor is one evaluation of the model at all samples:",
         "", markdown_table(head, rows), *merl,
     ])  # fmt: skip
-    write_section(DOCS, "fit", body)
+    write_section(BENCHMARKS_MD, "fit", body)
 
 
 if __name__ == "__main__":

@@ -48,10 +48,17 @@ from scipy.special import erf
 from acquisition.hdr.merge import HdrImage, merge_linear
 from acquisition.hdr.response import calibrate_response, merge_8bit
 from acquisition.noise import SensorNoise
-from bench._common import DEFAULT_OUT, best_time, format_table, machine_description, markdown_table, write_section
+from bench._common import (
+    DEFAULT_OUT,
+    best_time,
+    format_table,
+    machine_description,
+    markdown_table,
+    publish,
+    save_figure,
+)
 from simulator.camera.sensor import capture_bracket, dark_frame
 
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 Array = npt.NDArray[np.float64]
 
 NOISE = SensorNoise()
@@ -273,8 +280,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     path = args.out / "hdr.png"
     plot(path, scene, crb, rels)
     print(f"\nFigure: {path}")
-    write_section(DOCS, "hdr", markdown(today, machine, shape, crb_median, headers, table, warm_table, summary))
-    print(f"Section 'hdr' written to {DOCS}")
+    publish("hdr", markdown(today, machine, shape, crb_median, headers, table, warm_table, summary))
 
 
 WARM_HEADERS = ["darks", "median abs err", "worst ROI bias", "(SE)", "where", "merge ms", "weighting (auto)"]
@@ -322,10 +328,7 @@ def plot(path: Path, scene: Array, crb: Array, rels: dict[str, Array]) -> None:
     ax.set(yscale="log", xlabel="log10 radiance (counts/s)", ylabel="RMS relative error",
            title="HDR merge: per-pixel error against radiance (7 frames, 2 stops apart)")
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def markdown(today: str, machine: str, shape: tuple[int, ...], crb_median: float, headers: list[str],

@@ -15,8 +15,6 @@ Run: ``.venv/bin/python -m bench.loaded_run [--points 1000] [--spinners 8] [--an
 
 from __future__ import annotations
 
-import argparse
-import datetime
 import json
 import os
 import subprocess
@@ -27,9 +25,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from bench._common import format_table, machine_description, markdown_table, write_section
+from bench._common import bench_parser, format_table, machine_description, markdown_table, record
 
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 RIG = Path(__file__).resolve().parent.parent / "examples" / "rig_simulated.toml"
 #: A run that is still going after this many wall seconds is stopped and reported as not finished.
 RUN_TIMEOUT_S = 4 * 3600.0
@@ -106,11 +103,10 @@ def spin(count: int) -> list[subprocess.Popen[bytes]]:
 
 def main() -> None:
     """Run the anchor, then the loaded run; print and record the figures."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = bench_parser(__doc__)
     parser.add_argument("--points", type=int, default=1000, help="points of the loaded run (default 1000)")
     parser.add_argument("--spinners", type=int, default=8, help="busy processes during the loaded run (default 8)")
     parser.add_argument("--anchor-points", type=int, default=40, help="points of the unloaded anchor run")
-    parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/benchmarks.md")
     args = parser.parse_args()
     machine = machine_description()
     print(machine, flush=True)
@@ -138,18 +134,15 @@ def main() -> None:
     print(format_table(head, rows))
     if args.no_docs:
         return
-    body = "\n".join([
-        "## A long run under load (`bench/loaded_run.py`)", "",
-        f"Command: `.venv/bin/python -m bench.loaded_run --points {args.points} --spinners {args.spinners} "
-        f"--anchor-points {args.anchor_points}`. Run on {datetime.date.today()}.",
-        f"Machine: {machine}, shared with other work (the anchor's load is theirs).", "",
+    record(
+        "loaded_run", "A long run under load",
+        f" --points {args.points} --spinners {args.spinners} --anchor-points {args.anchor_points}",
+        f"{machine}, shared with other work (the anchor's load is theirs).",
         "`gonio run` on the simulated rig (`examples/rig_simulated.toml`, planned exposures at SNR 100) while "
         "busy processes (`python -c 'while 1: pass'`) contend for the cores; the load is the 1-minute load "
-        "average sampled every 5 s during the run. Anchor: a short run of the same kind without the spinners.", "",
+        "average sampled every 5 s during the run. Anchor: a short run of the same kind without the spinners.",
         markdown_table(head, rows),
-    ])  # fmt: skip
-    write_section(DOCS, "loaded_run", body)
-    print(f"\nSection 'loaded_run' written to {DOCS}")
+    )  # fmt: skip
 
 
 if __name__ == "__main__":

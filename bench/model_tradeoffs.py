@@ -27,7 +27,15 @@ import matplotlib.pyplot as plt
 import numpy as np
 import numpy.typing as npt
 
-from bench._common import DEFAULT_OUT, best_time, format_table, load_average, machine_description, uniform_hemisphere
+from bench._common import (
+    DEFAULT_OUT,
+    best_time,
+    format_table,
+    load_average,
+    machine_description,
+    save_figure,
+    uniform_hemisphere,
+)
 from model import fresnel, microfacet
 from model.base import Model
 from model.cook_torrance import CookTorrance
@@ -355,10 +363,7 @@ def plot(path: Path, fres: Data, mask: Data, prec: Data, alb: Data) -> None:
     p.set(xscale="log", yscale="log", xlabel="time per albedo (ms)", ylabel="|albedo - reference|",
           title="Albedo: n = 256 .. 65536 evaluations")
     p.legend(fontsize=8)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def main(argv: Sequence[str] | None = None) -> None:

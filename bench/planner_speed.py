@@ -12,10 +12,7 @@ Run: ``.venv/bin/python -m bench.planner_speed [--reps N] [--no-docs]``.
 
 from __future__ import annotations
 
-import argparse
-import datetime
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,10 +20,9 @@ import pytest
 from acquisition.exposure.plan import plan_exposure
 from acquisition.exposure.spec import CameraTiming, RoiLevel
 from acquisition.noise import SensorNoise
-from bench._common import format_table, load_average, machine_description, markdown_table, write_section
+from bench._common import bench_parser, format_table, load_average, machine_description, markdown_table, record
 from tests.acquisition.test_exposure_oracle import oracle_plan
 
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 GOAL_MS = 2.0
 
 
@@ -53,9 +49,8 @@ def cpu_per_plan(plan: object, levels: list[list[RoiLevel]], reps: int) -> float
 
 def main() -> None:
     """Time both planners, print and record."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = bench_parser(__doc__)
     parser.add_argument("--reps", type=int, default=3, help="passes over the levels; the best counts (default 3)")
-    parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/benchmarks.md")
     args = parser.parse_args()
     machine = machine_description()
     noise = SensorNoise(e_per_dn=4.0, read_noise_e=3.0, full_well_e=60000.0)
@@ -84,17 +79,14 @@ def main() -> None:
     print(format_table(head, rows))
     if args.no_docs:
         return
-    body = "\n".join([
-        "## Exposure planner speed (`bench/planner_speed.py`)", "",
-        f"Command: `.venv/bin/python -m bench.planner_speed --reps {args.reps}`. Run on {datetime.date.today()}.",
-        f"Machine: {machine}, shared with other work ({load}).", "",
+    record(
+        "planner_speed", "Exposure planner speed", f" --reps {args.reps}",
+        f"{machine}, shared with other work ({load}).",
         f"{len(levels)} plans of three-channel, 16-pixel ROI levels from 10 to 1e7 counts/s at target SNR 200, up "
         "to 5 frames, one dark frame, on the simulated rig's continuous camera; CPU time, best pass. Anchor: the "
-        "original planner, kept as the oracle of `tests/acquisition/test_exposure_oracle.py`.", "",
+        "original planner, kept as the oracle of `tests/acquisition/test_exposure_oracle.py`.",
         markdown_table(head, rows),
-    ])  # fmt: skip
-    write_section(DOCS, "planner_speed", body)
-    print(f"\nSection 'planner_speed' written to {DOCS}")
+    )  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -41,7 +41,7 @@ from acquisition.hdr.merge import merge_linear
 from acquisition.noise import SensorNoise
 from acquisition.roi import reduce_roi
 from bench import _sim_sweep as sweep
-from bench._common import DEFAULT_OUT, format_table, machine_description, markdown_table, timed_calls, write_section
+from bench._common import DEFAULT_OUT, format_table, machine_description, markdown_table, publish, timed_calls
 from model.base import Model
 from model.mitsuba.materials import to_mitsuba
 from model.mitsuba.variant import unavailable_reason
@@ -52,7 +52,6 @@ from simulator.render.renderer import RadianceRenderer, roi_mean
 from simulator.render.spec import CameraSpec, LightSpec
 
 ROOT = Path(__file__).resolve().parent.parent
-DOCS = ROOT / "docs" / "benchmarks.md"
 FIGURE = ROOT / "docs" / "figures" / "simulator.png"
 SCALAR, LLVM = sweep.VARIANTS
 MATERIALS: dict[str, Model] = {
@@ -306,8 +305,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             + (f" --points {points}`" if args.points else "`")
         )
         body = markdown(today, machine, versions, cmd, repeats, anchor, table, once, sweep_table, results, findings)
-        write_section(DOCS, "simulator", body)
-        print(f"Section 'simulator' written to {DOCS}")
+        publish("simulator", body)
 
 
 def markdown(today: str, machine: str, versions: str, cmd: str, repeats: int, anchor: float,

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from bench._common import format_table, load_average, machine_description, markdown_table, write_section
+from bench._common import BENCHMARKS_MD, format_table, load_average, machine_description, markdown_table, write_section
 from rig.instrument.links.dynamixel_table import X_SERIES
 from rig.run.backends.hardware import dynamixel_options
 from rig.run.config.files import parse, rig_config, sweep_config
@@ -44,7 +44,6 @@ from rig.run.planning.plan import move_time_s
 from rig.run.session import capture_settings, make_plan, manifest
 from rig.run.storage.store import RunStore
 
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 #: The controller's own CPU per point (ms): what it may cost beside the motion and the exposures.
 GOAL_MS = 5.0
 
@@ -291,7 +290,7 @@ def main(argv: list[str] | None = None) -> None:
         "the kind of work the controller does, so the ratio moves less with the machine's load than the "
         "figure). Where it goes (the controller thread's CPU inside each call):", "", markdown_table(head3, rows3),
     ])  # fmt: skip
-    write_section(DOCS, "sweep", body)
+    write_section(BENCHMARKS_MD, "sweep", body)
 
 
 if __name__ == "__main__":

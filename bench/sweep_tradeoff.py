@@ -43,10 +43,9 @@ from analysis.batch.cluster import ClusterSettings
 from analysis.batch.study import run_study, tradeoff_cells
 from analysis.batch.study_report import markdown_report, text_report
 from analysis.batch.tradeoff import ADAPTIVE_REFERENCE_SNR, KEYS, MAX_THETA, REFERENCE_SNR
-from bench._common import machine_description, write_section
+from bench._common import BENCHMARKS_MD, machine_description, write_section
 
 ROOT = Path(__file__).resolve().parent.parent
-DOCS = ROOT / "docs" / "benchmarks.md"
 FIGURE = ROOT / "docs" / "figures" / "sweep_tradeoff.png"
 
 
@@ -98,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
             + markdown_report(result.results, result.verdicts)
             + "\n![error against captures and rig time](figures/sweep_tradeoff.png)\n"
         )  # fmt: skip
-        write_section(DOCS, "sweep_tradeoff", body)
+        write_section(BENCHMARKS_MD, "sweep_tradeoff", body)
     return 0
 
 

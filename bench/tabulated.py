@@ -12,19 +12,15 @@ section.
 
 from __future__ import annotations
 
-import argparse
-import datetime
 import time
-from pathlib import Path
 
-from bench._common import format_table, load_average, machine_description, markdown_table, write_section
+from bench._common import bench_parser, format_table, load_average, machine_description, markdown_table, record
 from model import CookTorrance, OrenNayar, Phong, Ward
 from model.base import BRDF
 from model.mitsuba.projection import native_projection
 from model.mitsuba.tabulated import TabulationGrid, tabulate, tabulated_error
 from model.mitsuba.variant import pick_variant
 
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 MODELS: dict[str, BRDF] = {
     "Phong n 30 (rho_d .3/.2/.1, rho_s .4/.5/.6)": Phong(rho_d=(0.3, 0.2, 0.1), rho_s=(0.4, 0.5, 0.6), n=30.0),
     "Phong n 300 (rho_d .1, rho_s .5)": Phong(rho_d=0.1, rho_s=0.5, n=300.0),
@@ -46,8 +42,7 @@ def _pct(x: float) -> str:
 
 def main() -> None:
     """Measure every model on every grid against its projection, print and record."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/benchmarks.md")
+    parser = bench_parser(__doc__)
     args = parser.parse_args()
     machine, variant = machine_description(), pick_variant("rgb")
     tabulate(Phong(), GRIDS["low (16, 12, 4, 32)"])  # Mitsuba's kernels compiled before any timing
@@ -72,19 +67,15 @@ def main() -> None:
     print(format_table(head, rows))
     if args.no_docs:
         return
-    body = "\n".join([
-        "## Stock-Mitsuba table against projection (`bench/tabulated.py`)", "",
-        f"Command: `.venv/bin/python -m bench.tabulated`. Run on {datetime.date.today()}.",
-        f"Machine: {machine}; Mitsuba {variant}; shared with other work ({load}): the times include the "
-        "neighbours' load.", "",
+    record(
+        "tabulated", "Stock-Mitsuba table against projection", "",
+        f"{machine}; Mitsuba {variant}; shared with other work ({load}): the times include the neighbours' load.",
         "Errors are Mitsuba's (the `measured` plugin reading the file; the projection's BSDF) against gonio's model "
         "on the 16473-pair grid of `model/mitsuba/projection.py` (both zenith angles 0-80 deg). Anchor, in the same "
         "run: the projection onto diffuse + GGX, for its error and the time of its fit. Goal: the table is the "
-        "stock default wherever its RMS ratio to the projection is below 1.", "",
+        "stock default wherever its RMS ratio to the projection is below 1.",
         markdown_table(head, rows),
-    ])  # fmt: skip
-    write_section(DOCS, "tabulated", body)
-    print(f"\nSection 'tabulated' written to {DOCS}")
+    )  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -8,7 +8,8 @@ import sys
 from pathlib import Path
 
 from gonio.cli_errors import CliError
-from gonio.cli_run import _rig, _sigterm_as_interrupt, _stopped, _summary, resume_adaptive_dir
+from gonio.cli_options import add_command, add_quiet_option, add_rig_option, load_rig_option
+from gonio.cli_run import _sigterm_as_interrupt, _stopped, _summary, resume_adaptive_dir
 
 
 def _metadata(pairs: list[str] | None) -> dict[str, str]:
@@ -67,7 +68,7 @@ def _adaptive(args: argparse.Namespace) -> int:
                                     reference_snr=args.reference_snr, seed=args.seed)  # fmt: skip
     except ValueError as exc:  # the settings are the command line's options
         raise CliError(str(exc)) from None
-    rig = _rig(args.rig)
+    rig = load_rig_option(args.rig)
     print(f"adaptive sweep into {args.out}: {settings.budget} captures, model {args.model}", file=sys.stderr)
     # A bar over the captures (rounds differ in size), its ETA from the rounds done; round lines print above it.
     bar = tqdm(total=settings.budget, desc="adaptive", unit="capture", disable=args.quiet, dynamic_ncols=True)
@@ -90,8 +91,8 @@ def _adaptive(args: argparse.Namespace) -> int:
 
 def add_adaptive_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``gonio adaptive``."""
-    p = sub.add_parser(
-        "adaptive", help="measure where the current fit is least certain, round by round",
+    p = add_command(
+        sub, "adaptive", _adaptive, help="measure where the current fit is least certain, round by round",
         description="An adaptive sweep: a space-filling first round, then rounds chosen from reachable "
         "candidates to lower the fitted BRDF's expected error the most (first order, from the fit's "
         "Jacobian). Each round is an ordinary run in OUT/round-NN; OUT/samples.csv holds every round's rows "
@@ -100,7 +101,7 @@ def add_adaptive_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]
         epilog="Example: gonio adaptive --rig examples/rig_simulated.toml --out runs/gold-adaptive "
         "--model ggx_conductor --budget 100",
     )  # fmt: skip
-    p.add_argument("--rig", help="rig file (TOML); default: the built-in simulated rig")
+    add_rig_option(p)
     p.add_argument("--out", help="directory to create (must not exist or be empty)")
     p.add_argument("--resume", metavar="DIR", help="continue the interrupted adaptive sweep in DIR with the rig, "
                    "model and settings it started with (no other options)")  # fmt: skip
@@ -120,5 +121,4 @@ def add_adaptive_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]
                    help="what the sweep is about (sample=..., operator=..., notes=..., or a key of your own; "
                    "repeat for more), laid over the rig file's [metadata]: into every round, the tables and the "
                    "report")  # fmt: skip
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=_adaptive)
+    add_quiet_option(p)

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gonio.cli_errors import CliError
+from gonio.cli_options import add_command, add_quiet_option, positive_count
 from gonio.cli_run import EXIT_OK
 
 if TYPE_CHECKING:
@@ -30,16 +31,6 @@ if TYPE_CHECKING:
 
 _MODELS_HELP = ("lambert, lambert_ggx (dielectric), lambert_ggx_schlick, ggx_conductor, ggx_conductor_lambert, "
                 "blinn_phong, ward (anisotropic)")  # fmt: skip
-
-
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive whole number")
-    return value
 
 
 def _whole(out: Path, force: bool) -> bool:
@@ -157,8 +148,8 @@ def _analyze_with(args: argparse.Namespace, standby: Standby | None, exporter: S
 
 def add_analyze_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``gonio analyze``."""
-    p = sub.add_parser(
-        "analyze", help="fit models to a run or a MERL file and write an HTML report with figures",
+    p = add_command(
+        sub, "analyze", _analyze, help="fit models to a run or a MERL file and write an HTML report with figures",
         description="Load a run directory (finished, or stopped: then analysed as far as it got, with a warning) or a "
         "MERL .binary file (random bins, std errors assumed), fit a ladder of models from Lambert upward, choose the "
         "simplest the data support (BIC) and write DIR/index.html, DIR/fit.json and DIR/figures (in-plane slices, "
@@ -172,11 +163,10 @@ def add_analyze_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     p.add_argument("--force", action="store_true",
                    help="replace an existing analysis in the report directory (without it gonio analyze refuses)")
     add_fit_options(p)
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
-    p.add_argument("--jobs", type=_positive, default=min(os.cpu_count() or 1, 4),
+    add_quiet_option(p, "no progress lines")
+    p.add_argument("--jobs", type=positive_count, default=min(os.cpu_count() or 1, 4),
                    help="processes drawing the figures side by side, and with 2 or more two fit the candidates "
                    "(default: the cores, at most 4; 1: everything in this process)")
-    p.set_defaults(func=_analyze)
 
 
 def add_fit_options(p: argparse.ArgumentParser) -> None:
@@ -189,8 +179,8 @@ def add_fit_options(p: argparse.ArgumentParser) -> None:
                    help="sample weights: total (default; each value's whole error, calibration included) or point "
                    "(each capture's own reading error: chi2 then tests the model against the capture noise, and the "
                    "scale carries the calibration's error on top)")
-    p.add_argument("--starts", type=_positive, default=4, help="optimiser starts per candidate (default 4)")
-    p.add_argument("--samples", type=_positive, help="MERL bins drawn at random (MERL source only; default 20000)")
+    p.add_argument("--starts", type=positive_count, default=4, help="optimiser starts per candidate (default 4)")
+    p.add_argument("--samples", type=positive_count, help="MERL bins drawn at random (MERL source only; default 20000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the MERL subsample and the random starts (default 0)")
     p.add_argument("--compare", metavar="MERL_FILE", help="overlay a reference MERL material on the slices")
     p.add_argument("--y-scale", default="auto", choices=("auto", "log", "linear"),

@@ -14,8 +14,9 @@ import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from gonio.cli_analyze import _positive, add_fit_options
+from gonio.cli_analyze import add_fit_options
 from gonio.cli_errors import CliError
+from gonio.cli_options import add_command, add_quiet_option, positive_count
 from gonio.cli_run import EXIT_BAD_INPUT, EXIT_OK
 
 if TYPE_CHECKING:  # imported for real inside the commands: Dask and scipy would slow every gonio command
@@ -85,9 +86,9 @@ def _batch_study(args: argparse.Namespace) -> int:
 
 def _add_cluster_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS", help=_CLUSTER_HELP)
-    p.add_argument("--workers", type=_positive, help="workers of the local cluster (default: the cores)")
+    p.add_argument("--workers", type=positive_count, help="workers of the local cluster (default: the cores)")
     p.add_argument("--no-dashboard", action="store_true", help="run the local cluster without Dask's dashboard")
-    p.add_argument("--quiet", action="store_true", help="no progress bar or lines")
+    add_quiet_option(p, "no progress bar or lines")
 
 
 def add_batch_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -99,8 +100,9 @@ def add_batch_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
         "started again skips what is done.",
     )  # fmt: skip
     jobs = batch.add_subparsers(dest="batch_command", required=True, metavar="JOB")
-    p = jobs.add_parser(
-        "analyze", help="fit, report and export every input as gonio analyze would, and catalogue them",
+    p = add_command(
+        jobs, "analyze", _batch_analyze,
+        help="fit, report and export every input as gonio analyze would, and catalogue them",
         description="Analyse each run directory or MERL .binary file as one task: OUT/<name> holds exactly what "
         "`gonio analyze INPUT --out OUT/<name>` writes (the same bytes for the same inputs and seed), "
         "OUT/catalogue.parquet one row per input (chosen model, parameters and errors, goodness of fit, the run's "
@@ -113,10 +115,10 @@ def add_batch_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
     p.add_argument("--out", required=True, help="batch directory (one directory per input, catalogue.parquet)")
     add_fit_options(p)
     _add_cluster_options(p)
-    p.set_defaults(func=_batch_analyze)
 
-    st = jobs.add_parser(
-        "study", help="run a simulation study (designs x materials x seeds) as tasks, and tabulate and plot it",
+    st = add_command(
+        jobs, "study", _batch_study,
+        help="run a simulation study (designs x materials x seeds) as tasks, and tabulate and plot it",
         description="Without --rig/--sweep: the study of bench/sweep_tradeoff (grids, Rusinkiewicz grids and the "
         "adaptive sweep at three SNRs on a rough metal, a glossy plastic and a matte sample). With them: every sweep "
         "file on every rig file (simulated rigs), each with --seeds simulator seeds, fitted with the --models ladder "
@@ -130,7 +132,7 @@ def add_batch_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
     st.add_argument("--out", required=True, help="study directory (tables, figure, outcomes.parquet, task records)")
     st.add_argument("--rig", nargs="+", metavar="RIG", help="simulated rig files, one material each")
     st.add_argument("--sweep", nargs="+", metavar="SWEEP", help="sweep files, one design each")
-    st.add_argument("--seeds", type=_positive, default=3, help="simulator seeds per cell (default 3)")
+    st.add_argument("--seeds", type=positive_count, default=3, help="simulator seeds per cell (default 3)")
     st.add_argument("--first-seed", type=int, default=1, help="first simulator seed (default 1): more seeds later")
     st.add_argument("--materials", nargs="+", choices=("metal", "plastic", "matte"),
                     help="sweep_tradeoff materials (default all three)")  # fmt: skip
@@ -141,4 +143,3 @@ def add_batch_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
     st.add_argument("--keep-runs", action="store_true", help="keep every cell's runs in OUT/runs")
     st.add_argument("--serial", action="store_true", help="run the cells in this process, one after the other")
     _add_cluster_options(st)
-    st.set_defaults(func=_batch_study)

@@ -20,7 +20,8 @@ import sys
 from pathlib import Path
 
 from gonio.cli_errors import CliError
-from gonio.cli_run import EXIT_BAD_INPUT, EXIT_CAMERA, EXIT_HARDWARE, EXIT_OK, _rig
+from gonio.cli_options import add_command, add_quiet_option, add_rig_option, load_rig_option
+from gonio.cli_run import EXIT_BAD_INPUT, EXIT_CAMERA, EXIT_HARDWARE, EXIT_OK
 
 
 def _camera(args: argparse.Namespace) -> int:
@@ -35,7 +36,7 @@ def _camera(args: argparse.Namespace) -> int:
         raise CliError(f"--steps {args.steps}: expected at least 6 exposures (photon transfer needs them)")
     if args.flat_frames < 0 or args.flat_frames == 1:
         raise CliError(f"--flat-frames {args.flat_frames}: expected 0 (no flat field) or at least 2")
-    rig = _rig(args.rig)
+    rig = load_rig_option(args.rig)
     try:
         settings = CalibrationSettings(steps=args.steps, flat_frames=args.flat_frames)
     except ValueError as exc:  # the settings are the command line's options
@@ -100,7 +101,7 @@ def _geometry(args: argparse.Namespace) -> int:
     from rig.instrument.links.base import LinkError
 
     geometry_options(args)  # before the rig file: a mistyped option should not wait for a rig to load
-    rig = _rig(args.rig)
+    rig = load_rig_option(args.rig)
     say = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     try:
         board = ChArUcoBoard(squares=args.squares, square_mm=args.square_mm, marker_mm=args.marker_mm)
@@ -129,13 +130,19 @@ def _geometry(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _add_rig_and_out(parser: argparse.ArgumentParser, written: str) -> None:
+    """What every calibration takes alike: the rig of --rig, and --out, the folder it writes ``written`` into."""
+    add_rig_option(parser)
+    parser.add_argument("--out", default=".", help=f"folder for {written} (default: .)")
+
+
 def add_calibrate_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``gonio calibrate`` and its subcommands."""
     cal = sub.add_parser("calibrate", help="calibrate the instrument (camera: photon transfer; geometry: alignment)",
                          description="Calibrations of the instrument, one subcommand each.")  # fmt: skip
     group = cal.add_subparsers(dest="calibration", required=True, metavar="WHAT")
-    camera = group.add_parser(
-        "camera", help="photon transfer and flat field of the rig's camera: camera_calibration.json",
+    camera = add_command(
+        group, "camera", _camera, help="photon transfer and flat field of the rig's camera: camera_calibration.json",
         description="Shows the camera a uniform light (on a real rig the operator is asked to place an integrating "
         "sphere or a diffuser, and later to cap the lens), takes flat pairs at equally spaced exposures up to "
         "saturation with dark pairs (EMVA 1288) and a flat-field series, and fits gain (e-/DN), read noise, dark "
@@ -143,16 +150,15 @@ def add_calibrate_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser
         "flat_field.npz and photon_transfer.png; a rig file uses them as [camera] calibration and flat_field.",
         epilog="Example: gonio calibrate camera --rig examples/rig_simulated_raw.toml --out calib/",
     )  # fmt: skip
-    camera.add_argument("--rig", help="rig file (TOML); default: the built-in simulated rig")
-    camera.add_argument("--out", default=".", help="folder for camera_calibration.json and the rest (default: .)")
+    _add_rig_and_out(camera, "camera_calibration.json and the rest")
     camera.add_argument("--steps", type=int, default=32,
                         help="exposures of the photon-transfer series, two flats and two darks each (default 32)")
     camera.add_argument("--flat-frames", type=int, default=16,
                         help="frames of the flat-field series; 0 for none (default 16)")  # fmt: skip
-    camera.add_argument("--quiet", action="store_true", help="no progress messages")
-    camera.set_defaults(func=_camera)
-    geometry = group.add_parser(
-        "geometry", help="joint zeros, sample tilt and offset from a ChArUco board: geometry_calibration.json",
+    add_quiet_option(camera, "no progress messages")
+    geometry = add_command(
+        group, "geometry", _geometry,
+        help="joint zeros, sample tilt and offset from a ChArUco board: geometry_calibration.json",
         description="Mounts a glossy ChArUco board on the stage (on a real rig the operator is asked to), captures "
         "HDR whole frames at planned poses (a round seeing the board from many directions, then mirror poses that "
         "show the lamp's highlight in the board's coat), and fits the joints' zero offsets, the sample's tilt on "
@@ -160,8 +166,7 @@ def add_calibrate_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser
         "Writes geometry_calibration.json; a rig file applies it with [geometry] calibration = \"...\".",
         epilog="Example: gonio calibrate geometry --rig examples/rig_simulated.toml --out calib/",
     )  # fmt: skip
-    geometry.add_argument("--rig", help="rig file (TOML); default: the built-in simulated rig")
-    geometry.add_argument("--out", default=".", help="folder for geometry_calibration.json (default: .)")
+    _add_rig_and_out(geometry, "geometry_calibration.json")
     geometry.add_argument("--captures", type=int, default=30,
                           help="captures: half see the board, half the lamp's mirror (default 30; with 24 a "
                           "glossy sample's fit was 2x a perfect rig's error, with 30 1.0x)")  # fmt: skip
@@ -170,5 +175,4 @@ def add_calibrate_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser
     geometry.add_argument("--squares", type=int, default=7, help="board squares per side (default 7)")
     geometry.add_argument("--square-mm", type=float, default=6.0, help="board square size in mm (default 6)")
     geometry.add_argument("--marker-mm", type=float, default=4.5, help="ArUco marker size in mm (default 4.5)")
-    geometry.add_argument("--quiet", action="store_true", help="no progress messages")
-    geometry.set_defaults(func=_geometry)
+    add_quiet_option(geometry, "no progress messages")

@@ -16,23 +16,12 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 # Re-exported: the exit codes have always been importable from here (see docs/architecture.md).
 from gonio.cli_errors import EXIT_BAD_INPUT as EXIT_BAD_INPUT
 from gonio.cli_errors import EXIT_CAMERA, EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_OK
-
-if TYPE_CHECKING:
-    from rig.run.config.files import RigConfig
-
-
-def _rig(path: str | None) -> RigConfig:
-    # Imported here, not at the top: the configuration's schema (pydantic) costs most of a second, and
-    # `gonio --help` or `gonio analyze` need none of it.
-    from rig.run.config.files import load_rig, rig_config
-    from rig.run.config.schema import RigFile
-
-    return load_rig(path) if path else rig_config(RigFile(), "<built-in simulated rig>")
+from gonio.cli_options import add_command, add_quiet_option, add_rig_option, load_rig_option
 
 
 @contextmanager
@@ -77,7 +66,7 @@ def _run(args: argparse.Namespace) -> int:
     from rig.run.measuring.runner import RunStopped
     from rig.run.session import start_run
 
-    rig, sweep = _rig(args.rig), load_sweep(args.sweep)
+    rig, sweep = load_rig_option(args.rig), load_sweep(args.sweep)
     out = Path(args.out) if args.out else _default_out(args.sweep)
     print(f"run directory: {out}", file=sys.stderr)
     for warning in rig.calibration_warnings():
@@ -136,7 +125,7 @@ def _plan(args: argparse.Namespace) -> int:
     from rig.run.config.files import load_sweep
     from rig.run.session import make_plan
 
-    rig, sweep = _rig(args.rig), load_sweep(args.sweep)
+    rig, sweep = load_rig_option(args.rig), load_sweep(args.sweep)
     plan = make_plan(rig, sweep, progress=not args.quiet)
     print(f"rig: {rig.file.name} ({rig.path}); sweep: {sweep.file.name} ({sweep.path})")
     print(rig.calibration.describe() if rig.calibration else "geometry calibration: none (the rig as drawn)")
@@ -159,44 +148,44 @@ def _demo(args: argparse.Namespace) -> int:
     return run_demo(Path(args.out), points=args.points, progress=not args.quiet)
 
 
+def _add_sweep_and_rig(parser: argparse.ArgumentParser) -> None:
+    """What ``gonio run`` and ``gonio plan`` take alike: a sweep file, on the rig of --rig."""
+    parser.add_argument("sweep", help="sweep file (TOML)")
+    add_rig_option(parser)
+
+
 def add_run_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``gonio run``, ``plan``, ``resume`` and ``demo``."""
-    run = sub.add_parser(
-        "run", help="measure a sweep (on the simulated rig unless --rig names hardware)",
+    run = add_command(
+        sub, "run", _run, help="measure a sweep (on the simulated rig unless --rig names hardware)",
         description="Plan the sweep, then measure every reachable point: move, wait in position, read back "
         "the angles, capture an HDR bracket, reduce the ROI, journal the point. Reference readings and a drift "
         "check on the rig's schedule. Ctrl-C stops safely; `gonio resume RUN` continues. Exit codes: 0 done, "
         "2 bad input, 3 hardware fault, 4 camera fault, 130 interrupted.",
         epilog="Example: gonio run examples/sweep_in_plane.toml --rig examples/rig_simulated.toml --out runs/gold",
     )  # fmt: skip
-    run.add_argument("sweep", help="sweep file (TOML)")
-    run.add_argument("--rig", help="rig file (TOML); default: the built-in simulated rig")
+    _add_sweep_and_rig(run)
     run.add_argument("--out", help="run directory to create (default: runs/<sweep>-<date>-<time>)")
-    run.add_argument("--quiet", action="store_true", help="no progress bar")
-    run.set_defaults(func=_run)
-    plan = sub.add_parser(
-        "plan", help="print a sweep's plan and time estimate without moving anything",
+    add_quiet_option(run)
+    plan = add_command(
+        sub, "plan", _plan, help="print a sweep's plan and time estimate without moving anything",
         description="Generate the sweep's points, solve the rig's kinematics, list unreachable points with their "
         "reasons, order the rest for the least move time and estimate the run time.",
         epilog="Example: gonio plan examples/sweep_grid.toml --rig examples/rig_simulated.toml --list",
     )  # fmt: skip
-    plan.add_argument("sweep", help="sweep file (TOML)")
-    plan.add_argument("--rig", help="rig file (TOML); default: the built-in simulated rig")
+    _add_sweep_and_rig(plan)
     plan.add_argument("--list", action="store_true", help="also list every point in run order with its joints")
-    plan.add_argument("--quiet", action="store_true",
-                      help="no progress bar (shown on stderr for a plan of more than 10000 points)")  # fmt: skip
-    plan.set_defaults(func=_plan)
-    resume = sub.add_parser(
-        "resume", help="continue a stopped or killed run from its journal",
+    add_quiet_option(plan, "no progress bar (shown on stderr for a plan of more than 10000 points)")
+    resume = add_command(
+        sub, "resume", _resume, help="continue a stopped or killed run from its journal",
         description="Reopen a run directory, rebuild its plan from the manifest and measure the points its journal "
         "lacks. The table at the end equals that of an uninterrupted run.",
         epilog="Example: gonio resume runs/gold",
     )  # fmt: skip
     resume.add_argument("run", help="run directory (or an adaptive sweep's directory)")
-    resume.add_argument("--quiet", action="store_true", help="no progress bar")
-    resume.set_defaults(func=_resume)
-    demo = sub.add_parser(
-        "demo", help="measure a gold sample on the simulated rig and plot it against its true BRDF",
+    add_quiet_option(resume)
+    demo = add_command(
+        sub, "demo", _demo, help="measure a gold sample on the simulated rig and plot it against its true BRDF",
         description="Brings up the simulated rig (virtual servos on a pty, Mitsuba camera), runs an in-plane "
         "sweep of a rough gold sample with reference readings, and writes the run, its table of BRDF samples and "
         "a plot of the measured BRDF (with error bars) against the material's model.",
@@ -204,5 +193,4 @@ def add_run_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )  # fmt: skip
     demo.add_argument("--out", default="out/demo", help="output directory (default: out/demo; replaced)")
     demo.add_argument("--points", type=int, default=13, help="view angles per incidence (default 13)")
-    demo.add_argument("--quiet", action="store_true", help="no progress bar")
-    demo.set_defaults(func=_demo)
+    add_quiet_option(demo)

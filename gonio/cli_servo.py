@@ -18,6 +18,7 @@ import termios
 from pathlib import Path
 
 from gonio.cli_errors import EXIT_DECLINED, EXIT_HARDWARE, EXIT_OK, CliError
+from gonio.cli_options import add_command
 from model.spelling import did_you_mean
 from rig.instrument.links.dynamixel_bus import SDK_BAUDRATES, CommunicationError, DynamixelBus
 from rig.instrument.links.dynamixel_table import (
@@ -310,6 +311,10 @@ def _common(p: argparse.ArgumentParser, port_required: bool = True) -> None:
     p.add_argument("--latency-ms", type=float, default=16.0, help="USB adapter latency timer in ms (default 16)")
 
 
+def _add_yes(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--yes", action="store_true", help="do not ask for confirmation")
+
+
 def _servo_id(text: str) -> int:
     try:
         value = int(text)
@@ -325,22 +330,21 @@ def add_servo_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
     servo = sub.add_parser("servo", help="scan, ping, check, inspect, move, set the id or baud of Dynamixel servos",
                            description="Commissioning tools for a Dynamixel Protocol 2.0 bus.")  # fmt: skip
     acts = servo.add_subparsers(dest="servo_action", required=True, metavar="ACTION")
-    scan = acts.add_parser("scan", help="find servos at one or more baud rates",
-                           epilog="Example: gonio servo scan --port /dev/ttyUSB0 --bauds 57600 1000000")  # fmt: skip
+    scan = add_command(acts, "scan", _scan, help="find servos at one or more baud rates",
+                       epilog="Example: gonio servo scan --port /dev/ttyUSB0 --bauds 57600 1000000")  # fmt: skip
     _common(scan)
     scan.add_argument("--bauds", type=int, nargs="+", choices=SDK_BAUDRATES, default=[57600, 1_000_000],
                       metavar="BAUD", help="baud rates to try (default 57600 1000000)")  # fmt: skip
     scan.add_argument("--ping-each", action="store_true", help="ping ids one by one instead of a broadcast ping")
     scan.add_argument("--max-id", type=int, default=20, help="highest id for --ping-each (default 20)")
-    scan.set_defaults(func=_scan)
     for name, helptext, func in (("ping", "ping servos by id", _ping),
                                  ("status", "position, torque, motion and hardware errors", _status)):  # fmt: skip
-        p = acts.add_parser(name, help=helptext, epilog=f"Example: gonio servo {name} --port /dev/ttyUSB0 1 2 3 4")
+        p = add_command(acts, name, func, help=helptext,
+                        epilog=f"Example: gonio servo {name} --port /dev/ttyUSB0 1 2 3 4")  # fmt: skip
         _common(p)
         p.add_argument("ids", type=int, nargs="+", help="servo ids")
-        p.set_defaults(func=func)
-    check = acts.add_parser(
-        "check", help="is the port there and yours, is its USB latency timer right; optionally ping ids",
+    check = add_command(
+        acts, "check", _check, help="is the port there and yours, is its USB latency timer right; optionally ping ids",
         description="Checks the serial port (present, readable and writable by you, else which group to join), the "
         "USB adapter's latency timer in /sys/bus/usb-serial/devices/<tty>/latency_timer (above 1 ms every reply waits "
         "for it; above --latency-ms replies look lost) and, with ids, pings them. Exit 0 when all is well, 3 if not.",
@@ -348,9 +352,8 @@ def add_servo_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
     )  # fmt: skip
     _common(check)
     check.add_argument("ids", type=int, nargs="*", help="servo ids to ping once the port looks right")
-    check.set_defaults(func=_check)
-    set_id = acts.add_parser(
-        "set-id", help="give one servo a new id (asks first; --yes skips the question)",
+    set_id = add_command(
+        acts, "set-id", _set_id, help="give one servo a new id (asks first; --yes skips the question)",
         description="Pings the servo at ID, makes sure NEW_ID is free, asks, switches its torque off (the EEPROM is "
         "locked while torque is on), writes ID (7) and checks that it answers at NEW_ID and nothing at ID. Connect "
         "new servos one at a time: they all leave the factory as id 1.",
@@ -359,10 +362,9 @@ def add_servo_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
     _common(set_id)
     set_id.add_argument("id", type=_servo_id, help="the servo's id now")
     set_id.add_argument("new_id", type=_servo_id, help="its new id (0..252)")
-    set_id.add_argument("--yes", action="store_true", help="do not ask for confirmation")
-    set_id.set_defaults(func=_set_id)
-    set_baud = acts.add_parser(
-        "set-baud", help="move servos to a new baud rate (asks first; --yes skips the question)",
+    _add_yes(set_id)
+    set_baud = add_command(
+        acts, "set-baud", _set_baud, help="move servos to a new baud rate (asks first; --yes skips the question)",
         description="Pings each servo at --baud, asks, switches torque off, writes Baud Rate (8), then talks at "
         "NEW_BAUD and checks that each answers there. Change every servo of a bus together: one bus has one rate.",
         epilog="Example: gonio servo set-baud --port /dev/ttyUSB0 --baud 57600 1 2 3 4 1000000",
@@ -371,13 +373,11 @@ def add_servo_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
     set_baud.add_argument("ids", type=_servo_id, nargs="+", help="servo ids to change")
     set_baud.add_argument("new_baud", type=int, metavar="NEW_BAUD",
                           help=f"the new rate, one of {', '.join(map(str, SETTABLE_BAUDRATES))}")  # fmt: skip
-    set_baud.add_argument("--yes", action="store_true", help="do not ask for confirmation")
-    set_baud.set_defaults(func=_set_baud)
-    move = acts.add_parser("move", help="move one joint of a rig file to an angle and wait until in position",
-                           epilog="Example: gonio servo move --rig examples/rig_dynamixel.toml light 30")  # fmt: skip
+    _add_yes(set_baud)
+    move = add_command(acts, "move", _move, help="move one joint of a rig file to an angle and wait until in position",
+                       epilog="Example: gonio servo move --rig examples/rig_dynamixel.toml light 30")  # fmt: skip
     move.add_argument("--rig", required=True, help="rig file (TOML) with a dynamixel link")
     move.add_argument("--port", help="override the rig file's port")
     move.add_argument("--keep-torque", action="store_true", help="leave the servos holding afterwards")
     move.add_argument("joint", help="joint name (light, camera, tilt, roll, yaw)")
     move.add_argument("degrees", type=float, help="target angle of the joint in degrees")
-    move.set_defaults(func=_move)

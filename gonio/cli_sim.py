@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from gonio.cli_errors import EXIT_CAMERA, CliError
+from gonio.cli_options import add_command, add_rig_option, load_rig_option
 from rig.instrument.clock import ScaledClock
 from rig.instrument.links.dynamixel_bus import SDK_BAUDRATES
 
@@ -47,6 +48,10 @@ def _speed(text: str) -> float:
     if not value > 0:
         raise argparse.ArgumentTypeError(f"speed {text!r}: expected a positive factor (1 = real time)")
     return value
+
+
+def _add_speed(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
 
 
 def _grbl_axes(text: str) -> str:
@@ -150,11 +155,9 @@ def _rig(args: argparse.Namespace) -> int:
     import threading
     from pathlib import Path
 
-    from rig.run.config.files import load_rig, rig_config
-    from rig.run.config.schema import RigFile
     from simulator import rehearsal as r
 
-    cfg = load_rig(args.rig) if args.rig else rig_config(RigFile(), "<built-in simulated rig>")
+    cfg = load_rig_option(args.rig)
     link = r.rehearsal_link(cfg, args.link)
     spec = r.rehearsal_spec(cfg, link, resolution=args.resolution, speed=args.speed)
     frames = Path(args.frames).resolve()
@@ -291,8 +294,8 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         "stdout is the device path; point any client at it (gonio, dynamixel_sdk, ROBOTIS tools, a G-code sender).",
     )
     kinds = sim.add_subparsers(dest="sim_kind", required=True, metavar="DEVICE")
-    servos = kinds.add_parser(
-        "servos",
+    servos = add_command(
+        kinds, "servos", _servos,
         help="virtual Dynamixel Protocol 2.0 bus of XM430-W350 servos",
         epilog="Example: gonio sim servos --ids 1-4 --baud 1000000",
     )
@@ -305,17 +308,18 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         metavar="BAUD",
         help="servos' baud rate, one dynamixel_sdk accepts (default 1000000)",
     )
-    servos.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
+    _add_speed(servos)
     servos.add_argument(
         "--return-delay", action="store_true", help="honour each servo's Return Delay Time in real time"
     )
-    servos.set_defaults(func=_servos)
-    grbl = kinds.add_parser(
-        "grbl", help="virtual GRBL 1.1 motion controller", epilog="Example: gonio sim grbl --axes XYZA --homing"
+    grbl = add_command(
+        kinds, "grbl", _grbl,
+        help="virtual GRBL 1.1 motion controller",
+        epilog="Example: gonio sim grbl --axes XYZA --homing",
     )
     grbl.add_argument("--axes", type=_grbl_axes, default="XYZ",
                       help="axis letters, the first of XYZABC in order (default XYZ)")  # fmt: skip
-    grbl.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
+    _add_speed(grbl)
     grbl.add_argument(
         "--homing",
         action="store_true",
@@ -324,9 +328,9 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         "gonio run's GRBL link needs (it homes before it moves and refuses a controller without homing). "
         "Default: GRBL's factory settings (homing off, Idle at 0)",
     )
-    grbl.set_defaults(func=_grbl)
-    rig = kinds.add_parser(
-        "rig", help="a whole simulated rig for gonio's real backends: its link on a pty, a tethered RAW camera",
+    rig = add_command(
+        kinds, "rig", _rig,
+        help="a whole simulated rig for gonio's real backends: its link on a pty, a tethered RAW camera",
         description="Rehearses a rig: serves the rig file's virtual servos (or virtual GRBL controller) on a "
         "pseudo-terminal (first stdout line: its path) and, in place of the camera, a tethering program that "
         "writes whole-sensor DNG frames into --frames, rendered by Mitsuba from the pose the axes physically hold. "
@@ -339,18 +343,18 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         "'scene dark' (the lens cap), 'scene sample'.",
         epilog="Example: gonio sim rig --rig examples/rig_dynamixel.toml --frames out/tether --speed 10",
     )  # fmt: skip
-    rig.add_argument("--rig", help="rig file (TOML); default: the built-in simulated rig")
+    add_rig_option(rig)
     rig.add_argument("--link", choices=("dynamixel", "grbl"),
                      help="for a simulated rig file: the link to serve (default its [simulation] link)")  # fmt: skip
     rig.add_argument("--frames", default="out/sim-frames", help="hot folder for DNG frames (default out/sim-frames)")
-    rig.add_argument("--speed", type=_speed, default=1.0, help="simulated time per real second (default 1)")
+    _add_speed(rig)
     rig.add_argument("--resolution", type=_resolution, metavar="WxH",
                      help="sensor pixels (default: a simulated file's camera.resolution; for a hardware file the "
                           "smallest sensor centred on its camera.roi)")  # fmt: skip
     rig.add_argument("--write-rig", metavar="PATH", help="write the hardware rig file a controller uses here (TOML)")
-    rig.set_defaults(func=_rig)
-    shoot = kinds.add_parser(
-        "shoot", help="a tether trigger for the rehearsal: ask gonio sim rig for one frame and wait until it is shot",
+    shoot = add_command(
+        kinds, "shoot", _shoot,
+        help="a tether trigger for the rehearsal: ask gonio sim rig for one frame and wait until it is shot",
         description="Leaves a shot request in the rehearsal's hot folder and returns once gonio sim rig has taken "
         "it (the frame's file follows at once). As a rig file's [camera] trigger it stands where a tethering "
         "program's remote would: trigger = [\"gonio\", \"sim\", \"shoot\", \"--folder\", \"/tmp/tether\", "
@@ -363,9 +367,8 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     shoot.add_argument("--index", type=int, default=0, help="the frame's number, for the request's name (default 0)")
     shoot.add_argument("--timeout-s", type=_positive("timeout"), default=60.0,
                        help="seconds to wait for the rehearsal (default 60)")  # fmt: skip
-    shoot.set_defaults(func=_shoot)
-    merl = kinds.add_parser(
-        "merl", help="write a MERL .binary file of a known material, to try gonio analyze on",
+    merl = add_command(
+        kinds, "merl", _merl, help="write a MERL .binary file of a known material, to try gonio analyze on",
         description="Tabulates a material at the MERL bins (90 x 90 x 180 half/difference angles, three channels: "
         "a 35 MB file) and writes it in the MERL format: the rig file's [simulation.material], or a glossy paint "
         "(CookTorrance alpha 0.2, dielectric eta 1.5 over a diffuse base rho_d 0.2, 0.3, 0.4).",
@@ -373,4 +376,3 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     )  # fmt: skip
     merl.add_argument("--out", required=True, help="the .binary file to write (replaced)")
     merl.add_argument("--rig", help="rig file (TOML) whose [simulation.material] to tabulate; default: a paint")
-    merl.set_defaults(func=_merl)

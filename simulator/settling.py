@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 
 #: Wall seconds a settling clock waits for a serving thread at most: a dead one must not hang the simulation.
 SETTLE_TIMEOUT_S = 60.0
@@ -20,6 +21,8 @@ class Settling:
     _idle: threading.Condition
     _handling: bool
     _running: threading.Event
+    _stop: threading.Event  # set when the serving thread is to end
+    _unsettle: Callable[[], None] | None
     settling: int
 
     def _init_settling(self) -> None:
@@ -28,6 +31,19 @@ class Settling:
         self._running = threading.Event()  # cleared by pause(): the thread holds before reading
         self._running.set()
         self.settling = 0  # clocks waiting in settle() now (for tests)
+
+    def _settle_with(self, clock: object) -> None:
+        """Have ``clock`` wait for this device before time moves on, if it is a clock that settles."""
+        add_settler = getattr(clock, "add_settler", None)
+        self._unsettle = add_settler(self.settle) if add_settler is not None else None
+
+    def _stop_serving(self) -> None:
+        """Leave the clock's settlers and tell the serving thread to end, letting it go if paused (idempotent)."""
+        if self._unsettle is not None:
+            self._unsettle()
+            self._unsettle = None
+        self._stop.set()
+        self._running.set()
 
     def _serving(self) -> bool:
         """Whether the serving thread is there to handle input."""

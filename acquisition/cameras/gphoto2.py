@@ -68,6 +68,16 @@ def nearest_choice(requested: float, choices: Iterable[str], parse: Any = parse_
     return best[1], best[2]
 
 
+def _entry(gp: Any, listing: Any, lookup: str, key: str) -> Any | None:
+    """What libgphoto2's ``listing`` (loaded here) holds for ``key`` by its method ``lookup``; None if nothing."""
+    listing.load()
+    try:
+        index = getattr(listing, lookup)(key)
+    except gp.GPhoto2Error:
+        return None
+    return listing[index] if index >= 0 else None
+
+
 class GPhoto2Camera:
     """A still camera driven through libgphoto2: set shutter speed and ISO, capture, download, decode.
 
@@ -118,26 +128,17 @@ class GPhoto2Camera:
         """Use the camera on ``port`` ("usb:001,004", "disk:/folder") of driver ``model`` instead of autodetection."""
         if port is not None:
             ports = gp.PortInfoList()
-            ports.load()
-            try:
-                index = ports.lookup_path(port)
-            except gp.GPhoto2Error:
-                index = -1
-            if index < 0:
+            info = _entry(gp, ports, "lookup_path", port)
+            if info is None:
                 raise CameraError(f"gphoto2: no port {port!r} (libgphoto2 knows "
                                   f"{', '.join(ports[i].get_path() for i in range(len(ports)))})")  # fmt: skip
-            self._camera.set_port_info(ports[index])
+            self._camera.set_port_info(info)
         if model is not None:
-            abilities = gp.CameraAbilitiesList()
-            abilities.load()
-            try:
-                index = abilities.lookup_model(model)
-            except gp.GPhoto2Error:
-                index = -1
-            if index < 0:
+            abilities = _entry(gp, gp.CameraAbilitiesList(), "lookup_model", model)
+            if abilities is None:
                 raise CameraError(f"gphoto2: libgphoto2 has no camera model {model!r} (as `gphoto2 --list-cameras` "
                                   "names them)")  # fmt: skip
-            self._camera.set_abilities(abilities[index])
+            self._camera.set_abilities(abilities)
 
     @property
     def identity(self) -> str:

@@ -47,6 +47,9 @@ still tells an isotropic model from the rest (and says which mirror or half-turn
 
 Sizes (float32, 8-byte aligned) at the default grid: isotropic 0.8 MB; anisotropic, with the default 22.5 deg
 azimuth step (17 azimuths), 13.4 MB; :attr:`Tabulated.size_bytes` says the exact figure.
+
+One file past 400 lines on purpose: the NDF, the warps and the tables are one construction whose nodes
+must be the directions Mitsuba's plugin computes; split, that invariant would span modules.
 """
 
 from __future__ import annotations

@@ -18,9 +18,6 @@ The SDK also leaves the status packets of unicast ACTION and TxOnly writes unrea
 On a clock that settles (``ManualClock.add_settler``) the bus registers itself: time cannot move on while
 bytes a client wrote wait unhandled, so every packet acts at the simulated time it was sent, however late the
 serving thread runs on a loaded host (``pause`` holds the thread, to test exactly that).
-
-One file past 400 lines on purpose: serving the pty, routing packets to servos and settling the
-ManualClock are the bus's one thread and its invariants.
 """
 
 from __future__ import annotations
@@ -35,7 +32,7 @@ import termios
 import threading
 import time
 import tty
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 from rig.instrument.clock import Clock, SystemClock
@@ -57,7 +54,6 @@ _TERMIOS_SPEEDS = {
 }
 _POLL_S = 0.05
 _WRITE_TIMEOUT_S = 0.5
-#: Wall seconds a settling clock waits for the serving thread before moving on regardless (a dead thread).
 
 
 @dataclass
@@ -74,6 +70,8 @@ class BusStats:
 
 class VirtualDynamixelBus(Settling):
     """A set of virtual XM430-W350 servos answering Protocol 2.0 on a pseudo-terminal.
+
+    ``start``/``close`` serve and stop; in a ``with`` block (``open_virtual_bus``) it serves for the block.
 
     Parameters
     ----------
@@ -133,7 +131,7 @@ class VirtualDynamixelBus(Settling):
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._init_settling()
-        self._unsettle: Callable[[], None] | None = None
+        self._unsettle = None
         self._master = -1
         self._slave = -1
         self._wake_r = self._wake_w = -1
@@ -153,18 +151,12 @@ class VirtualDynamixelBus(Settling):
         self._stop.clear()
         self._thread = threading.Thread(target=self._serve, name=f"virtual-dynamixel {self.port}", daemon=True)
         self._thread.start()
-        add_settler = getattr(self.clock, "add_settler", None)
-        if add_settler is not None:
-            self._unsettle = add_settler(self.settle)
+        self._settle_with(self.clock)
         return self
 
     def close(self) -> None:
         """Stop the thread and close the pseudo-terminal (idempotent)."""
-        if self._unsettle is not None:
-            self._unsettle()
-            self._unsettle = None
-        self._stop.set()
-        self._running.set()
+        self._stop_serving()
         if self._wake_w >= 0:
             with contextlib.suppress(OSError):
                 os.write(self._wake_w, b"x")
@@ -342,31 +334,10 @@ def _termios2_speed(fd: int) -> int | None:
     return int(struct.unpack_from("I", raw, 40)[0])
 
 
-@contextlib.contextmanager
-def open_virtual_bus(
-    ids: Iterable[int] = (1, 2, 3, 4),
-    baudrate: int = 1_000_000,
-    clock: Clock | None = None,
-    *,
-    seed: int = 0,
-    positions: Mapping[int, int] | None = None,
-    return_delay: bool = False,
-    crc_error_replies: bool = True,
-) -> Iterator[VirtualDynamixelBus]:
-    """Serve virtual XM430-W350 servos ``ids`` at ``baudrate`` bps on a pty for the ``with`` block.
-
-    Yields the running ``VirtualDynamixelBus``: open ``bus.port`` with any Dynamixel client, reach the
-    servos with ``bus.servo(id)``. The keyword options are those of ``VirtualDynamixelBus``.
-    """
-    bus = VirtualDynamixelBus(
-        ids, baudrate, clock, seed=seed, positions=positions, return_delay=return_delay,
-        crc_error_replies=crc_error_replies,
-    )  # fmt: skip
-    bus.start()
-    try:
-        yield bus
-    finally:
-        bus.close()
+#: Serve virtual XM430-W350 servos on a pty for a ``with`` block: ``with open_virtual_bus(ids, baudrate) as bus``
+#: yields the running bus (open ``bus.port`` with any Dynamixel client, reach the servos with ``bus.servo(id)``),
+#: closed at the block's end. The bus is its own context manager; this name says what the block does.
+open_virtual_bus = VirtualDynamixelBus
 
 
 def serve_forever(bus: VirtualDynamixelBus, stop: threading.Event | None = None, poll_s: float = 0.2) -> None:

@@ -84,21 +84,18 @@ class ServoFaults:
 
     def next_reply_fate(self) -> ReplyFate:
         """Decide (and consume counters for) the next reply this servo sends."""
-        drop = False
-        if self.drop_replies > 0:
-            self.drop_replies -= 1
-            drop = True
-        elif self.drop_probability > 0.0 and self._rng.random() < self.drop_probability:
-            drop = True
-        if drop:
+        if self._strikes("drop_replies", self.drop_probability):
             return ReplyFate(drop=True)
-        corrupt = False
-        if self.corrupt_replies > 0:
-            self.corrupt_replies -= 1
-            corrupt = True
-        elif self.corrupt_probability > 0.0 and self._rng.random() < self.corrupt_probability:
-            corrupt = True
+        corrupt = self._strikes("corrupt_replies", self.corrupt_probability)
         return ReplyFate(corrupt=corrupt, delay_s=max(0.0, float(self.reply_delay_s)))
+
+    def _strikes(self, counter: str, probability: float) -> bool:
+        """Whether a fault strikes this reply: one of the ``counter`` attribute's next N (used up), else by chance."""
+        left: int = getattr(self, counter)
+        if left > 0:
+            setattr(self, counter, left - 1)
+            return True
+        return probability > 0.0 and self._rng.random() < probability
 
 
 @dataclass

@@ -35,6 +35,7 @@ import termios
 import threading
 import tty
 from collections.abc import Callable, Iterator, Mapping
+from typing import TypeVar
 
 from rig.instrument.clock import Clock
 from simulator.grbl.controller import VirtualGrbl
@@ -47,6 +48,7 @@ __all__ = ["GrblPtyServer", "VirtualGrbl", "open_virtual_grbl", "serve_grbl"]
 _TIOCPKT_FLUSHREAD = 0x01
 _MAX_PENDING_OUTPUT = 1 << 16  # bytes kept for a client that stopped reading; older output is dropped
 _IN_OPEN = 0x20
+_T = TypeVar("_T")
 
 
 class _OpenWatch:
@@ -115,8 +117,7 @@ class GrblPtyServer(Settling):
         self.opens = 0  # how many times a client opened the port (each one resets the controller)
         self.error: Exception | None = None  # what stopped the serving thread, if it crashed
         self._init_settling()
-        add_settler = getattr(controller.clock, "add_settler", None)
-        self._unsettle: Callable[[], None] | None = add_settler(self.settle) if add_settler is not None else None
+        self._settle_with(controller.clock)
 
     def start(self) -> None:
         """Serve from a daemon thread."""
@@ -126,11 +127,7 @@ class GrblPtyServer(Settling):
 
     def stop(self) -> None:
         """Stop serving (within one tick) and close the pty."""
-        if self._unsettle is not None:
-            self._unsettle()
-            self._unsettle = None
-        self._stop.set()
-        self._running.set()
+        self._stop_serving()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5.0)
         if self._master >= 0:
@@ -205,16 +202,20 @@ class GrblPtyServer(Settling):
         self._out.clear()
         self.controller.read_output()  # nobody is listening: GRBL's replies go nowhere
 
-    def _read(self) -> None:
+    def _on_master(self, io: Callable[[], _T]) -> _T | None:
+        """``io()`` on the master; None if it would block, or if no client has the port (then a hang-up)."""
         try:
-            packet = os.read(self._master, 4096)
+            return io()
         except BlockingIOError:
-            return
+            return None
         except OSError as exc:
-            if exc.errno == errno.EIO:
-                self._on_hangup()
-                return
-            raise
+            if exc.errno != errno.EIO:
+                raise
+            self._on_hangup()
+            return None
+
+    def _read(self) -> None:
+        packet = self._on_master(lambda: os.read(self._master, 4096))
         if not packet:
             return
         opened = self._opens.opened()
@@ -239,15 +240,9 @@ class GrblPtyServer(Settling):
 
     def _flush(self) -> None:
         while self._out:
-            try:
-                n = os.write(self._master, self._out)
-            except BlockingIOError:
+            n = self._on_master(lambda: os.write(self._master, self._out))
+            if n is None:
                 return
-            except OSError as exc:
-                if exc.errno == errno.EIO:
-                    self._on_hangup()
-                    return
-                raise
             del self._out[:n]
 
 
