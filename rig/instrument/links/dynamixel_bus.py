@@ -13,10 +13,10 @@ that may still be arriving for the abandoned request is drained, before the next
 
 Slow hosts and lossy buses. The SDK's reply timeout (transmit time + 2 x latency timer + 2 ms) is right for a
 quiet host, but a loaded one can deliver a reply later. A reply that does not come is retried with the window
-doubled each time (up to ``MAX_TIMEOUT_SCALE``), for at least ``reply_patience_s`` of the clock's time, so a slow host
-waits longer instead of reporting a dead servo. The window kept for later transactions grows only on a *late*
-reply (one that came after it: seen by the retry that caught it, or by the drain), never on a missing one,
-and relaxes geometrically with every reply on time: a bus that loses replies keeps its short window, so each
+doubled each time (up to ``MAX_TIMEOUT_SCALE``, or a quarter of the patience if wider), for at least
+``reply_patience_s`` of the clock's time, so a slow host waits longer instead of reporting a dead servo. The
+window kept for later transactions grows only on a *late* reply (one that came after it: seen by the retry that
+caught it, or by the drain), never on a missing one, and relaxes geometrically with every reply on time: a bus that loses replies keeps its short window, so each
 loss costs one window and a retry rather than an ever longer wait. Losses are counted on their own; a bus that
 loses more than ``LOSS_LIMIT`` of its replies over the last ``LOSS_WINDOW`` attempts is a ``LossyBusError``
 naming the rate. On a simulated clock (one with ``settle``, ``rig.instrument.clock.ManualClock``) a reply the
@@ -194,6 +194,9 @@ def _readable(fd: int, wait_s: float) -> bool:
 _PORT_FAILURES = (serial.SerialException, OSError, termios.error)
 MAX_TIMEOUT_SCALE = 16.0
 """Widest reply window, as a multiple of the SDK's (about 2 s at a 60 ms latency timer, 0.6 s at 16 ms)."""
+PATIENCE_WINDOW_SHARE = 0.25
+"""The widest window is also at least this share of ``reply_patience_s``: with a short latency timer (1 ms on a
+tuned adapter or a pty) 16 x the SDK's window is under 0.1 s, less than a loaded host may take to answer."""
 #: Factor on the kept window per reply on time: a window widened for a slow spell narrows again within tens.
 _RELAX = 0.9
 #: Room a widened window keeps above the slowest recent reply (a multiple of that reply's latency).
@@ -321,6 +324,7 @@ class DynamixelBus:
             # again is gone or slow, while a lossy bus spreads its losses over the servos of a group read.
             silent: dict[int, int] = {}
             allowed = self._silences_allowed()
+            widest = self._widest_scale()
             try:
                 while True:
                     self._port.timeout_scale = scale
@@ -350,7 +354,7 @@ class DynamixelBus:
                     waited = self._now() - started
                     # Past the retries, only a window that can still widen is worth waiting on (a slow host).
                     slow = (patient and result == sdk.COMM_RX_TIMEOUT and waited < self.reply_patience_s
-                            and scale < MAX_TIMEOUT_SCALE)  # fmt: skip
+                            and scale < widest)  # fmt: skip
                     if result not in _RETRYABLE or (worst > allowed and not slow):
                         raise CommunicationError(
                             f"{self.port_name} at {self.baudrate} baud: {what}: {self._ph.getTxRxResult(result)} "
@@ -361,7 +365,7 @@ class DynamixelBus:
                     if result == sdk.COMM_RX_TIMEOUT:
                         # This transaction only, and by how often the same servo was silent: a slow or dead servo
                         # gets ever longer windows, losses spread over a group's servos hardly any.
-                        scale = min(max(self.window_scale, kept * 2.0**worst), MAX_TIMEOUT_SCALE)
+                        scale = min(max(self.window_scale, kept * 2.0 ** min(worst, 64)), widest)
             finally:
                 # What the SDK is called with next (a broadcast ping too) is the kept window, not a retry's.
                 self._port.timeout_scale = self.window_scale
@@ -378,12 +382,17 @@ class DynamixelBus:
             return self.retries
         return max(self.retries, min(_MAX_SILENCES, math.ceil(math.log(_CHANCE) / math.log(r)) - 1))
 
+    def _widest_scale(self) -> float:
+        """The widest reply window as a multiple of the SDK's nominal one (2 x latency timer + 2 ms)."""
+        nominal_ms = 2.0 * self._port.latency_timer_ms + 2.0
+        return max(MAX_TIMEOUT_SCALE, PATIENCE_WINDOW_SHARE * self.reply_patience_s * 1000.0 / nominal_ms)
+
     def _learn_from_reply(self) -> None:
         """Widen the kept window after a reply later than it, else narrow it geometrically towards the SDK's."""
         base = self._port.base_timeout_ms
         ratio = self._port.reply_ms / base if base > 0 else 0.0
         if ratio > self.window_scale:  # it came only because this transaction's retry waited longer
-            self.window_scale = min(MAX_TIMEOUT_SCALE, max(2.0 * self.window_scale, _HEADROOM * ratio))
+            self.window_scale = min(self._widest_scale(), max(2.0 * self.window_scale, _HEADROOM * ratio))
         else:
             relaxed = max(_RELAX * self.window_scale, _HEADROOM * ratio, 1.0)
             self.window_scale = min(self.window_scale, relaxed)
@@ -391,7 +400,7 @@ class DynamixelBus:
     def _count_failure(self, what: str, late: bool) -> None:
         """Count one failed attempt: a late reply widens the kept window, a lost one counts towards the loss rate."""
         if late:
-            self.window_scale = min(MAX_TIMEOUT_SCALE, 2.0 * self.window_scale)
+            self.window_scale = min(self._widest_scale(), 2.0 * self.window_scale)
             self._losses.append(False)
             return
         self._losses.append(True)

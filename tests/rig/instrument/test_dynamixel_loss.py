@@ -15,7 +15,7 @@ from rig.instrument.links.dynamixel import DynamixelLink
 from rig.instrument.links.dynamixel_bus import LOSS_LIMIT, MAX_TIMEOUT_SCALE, CommunicationError
 from simulator.dynamixel import open_virtual_bus
 from simulator.dynamixel.bus import VirtualDynamixelBus
-from tests.rig.instrument.test_dynamixel_link import LATENCY_MS, make_axes
+from tests.rig.instrument.test_dynamixel_link import LATENCY_MS, NAMES, make_axes
 
 #: The SDK's reply window for a 4-servo SYNC_READ of 14 bytes at 1 Mbps with a 60 ms latency timer (ms).
 WINDOW_MS = 2 * LATENCY_MS + 2.0 + 0.01 * (11 + 14) * 4
@@ -70,6 +70,24 @@ def test_a_bus_losing_most_replies_is_a_hardware_fault_naming_the_loss(
     assert "sync read" in str(info.value)
     _lose(bus, 0.0)
     link.shutdown()
+
+
+def test_a_reply_later_than_the_widest_window_is_waited_for_within_the_patience(
+    rig: tuple[VirtualDynamixelBus, ManualClock],
+) -> None:
+    bus, clock = rig
+    # A 1 ms latency timer: the SDK's window is ~4 ms and the widest 16 x that, ~70 ms. A servo that answers after
+    # 200 ms is there, on a host too slow for that window (a pty-served device under load): the bus keeps
+    # asking at the widest window for its whole patience instead of reporting no servo after ~130 ms.
+    link = DynamixelLink.open(bus.port, make_axes(), clock=clock, latency_timer_ms=1.0, retries=1)
+    assert link.bus.reply_patience_s >= 1.0
+    bus.servo(2).faults.reply_delay_s = 0.2
+    try:
+        assert set(link.read_positions()) == set(NAMES)
+        assert link.bus.comm_retries_used >= 1
+    finally:
+        bus.servo(2).faults.clear()
+        link.shutdown()
 
 
 def test_late_replies_widen_the_window_and_replies_on_time_narrow_it_again(
