@@ -16,9 +16,9 @@ quiet host, but a loaded one can deliver a reply later. A reply that does not co
 doubled each time (up to ``MAX_TIMEOUT_SCALE``, or a quarter of the patience if wider), for at least
 ``reply_patience_s`` of the clock's time, so a slow host waits longer instead of reporting a dead servo. The
 window kept for later transactions grows only on a *late* reply (one that came after it: seen by the retry that
-caught it, or by the drain), never on a missing one, and relaxes geometrically with every reply on time: a bus that loses replies keeps its short window, so each
-loss costs one window and a retry rather than an ever longer wait. Losses are counted on their own; a bus that
-loses more than ``LOSS_LIMIT`` of its replies over the last ``LOSS_WINDOW`` attempts is a ``LossyBusError``
+caught it, or by the drain), never on a missing one, and relaxes geometrically with every reply on time: a bus
+that loses replies keeps its short window, so each loss costs one window and a retry rather than an ever longer
+wait. Losses are counted on their own; a bus that loses more than ``LOSS_LIMIT`` of its replies over the last ``LOSS_WINDOW`` attempts is a ``LossyBusError``
 naming the rate. On a simulated clock (one with ``settle``, ``rig.instrument.clock.ManualClock``) a reply the
 virtual device did not send is known to be lost once the device has settled: the wait is charged to the clock,
 not to the wall.
