@@ -11,18 +11,17 @@ transaction would answer "Port is in use!", the stop and the torque-off included
 object the port's only user, a set flag on entry can only be such a leftover: it is cleared, and the reply
 that may still be arriving for the abandoned request is drained, before the next transaction is sent.
 
-Slow hosts and lossy buses. The SDK's reply timeout (transmit time + 2 x latency timer + 2 ms) is right for a
-quiet host, but a loaded one can deliver a reply later. A reply that does not come is retried with the window
-doubled each time (up to ``MAX_TIMEOUT_SCALE``, or a quarter of the patience if wider), for at least
-``reply_patience_s`` of the clock's time, so a slow host waits longer instead of reporting a dead servo. The
-window kept for later transactions grows only on a *late* reply (one that came after it: seen by the retry that
-caught it, or by the drain), never on a missing one, and relaxes geometrically with every reply on time: a bus
-that loses replies keeps its short window, so each loss costs one window and a retry rather than an ever longer
-wait. Losses are counted on their own; a bus that loses more than ``LOSS_LIMIT`` of its replies over the last ``LOSS_WINDOW`` attempts is a ``LossyBusError``
-naming the rate. On a simulated clock (one with ``settle``, ``rig.instrument.clock.ManualClock``) a reply the
-virtual device did not send is known to be lost once the device has settled: the wait is charged to the clock,
-not to the wall.
-A port that fails at the OS level (EIO: cable or adapter pulled) is a ``LinkError``, never a bare OSError.
+Slow hosts and lossy buses. The SDK's reply timeout (transmit time + 2 x latency timer + 2 ms) is right for a quiet
+host, but a loaded one can deliver a reply later. A reply that does not come is retried with the window doubled each
+time (up to ``MAX_TIMEOUT_SCALE``, or a quarter of the patience if wider), for at least ``reply_patience_s`` of the
+clock's time, so a slow host waits longer instead of reporting a dead servo. The window kept for later transactions
+grows only on a *late* reply (one that came after it: seen by the retry that caught it, or by the drain), never on a
+missing one, and relaxes geometrically with every reply on time: a bus that loses replies keeps its short window, so
+each loss costs one window and a retry rather than an ever longer wait. Losses are counted on their own; a bus that
+loses more than ``LOSS_LIMIT`` of its replies over the last ``LOSS_WINDOW`` attempts is a ``LossyBusError`` naming
+the rate. On a simulated clock (one with ``settle``, ``rig.instrument.clock.ManualClock``) a reply the virtual
+device did not send is known to be lost once the device has settled: the wait is charged to the clock, not to the
+wall. A port that fails at the OS level (EIO: cable or adapter pulled) is a ``LinkError``, never a bare OSError.
 
 One file past 400 lines on purpose: the SDK's port handler, its lock, the interrupt recovery and the
 blocking reads are one ownership of the port; splitting them would spread the busy-flag invariant.
