@@ -18,13 +18,12 @@ glTF's "roughness" r maps to alpha = r^2.
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
-from model import fresnel, microfacet
+from model import fresnel, microfacet, runtime
 from model._params import Channel, ParameterError, channel, choice, scalar
 from model.base import Array, Model, Pair
 
@@ -38,17 +37,8 @@ KERNEL_MIN_PAIRS = 4096
 #: takes for about a million GGX pairs: a one-off analysis (some 10^5 pairs, gonio analyze) never pays it, while a
 #: long fit or a render pays it within its first second of numpy. Where numba is imported already (a run's HDR
 #: merge, the benchmarks), the kernel is used at once.
+#: The pairs are counted for the whole process (:func:`model.runtime.load_due`), over every CookTorrance.
 KERNEL_LOAD_PAIRS = 1_000_000
-_numpy_pairs = 0
-
-
-def _kernel_worth_loading(pairs: int) -> bool:
-    """Whether a batch of ``pairs`` (>= KERNEL_MIN_PAIRS) goes to the kernel (see KERNEL_LOAD_PAIRS)."""
-    global _numpy_pairs
-    if "numba" in sys.modules:
-        return True
-    _numpy_pairs += pairs
-    return _numpy_pairs > KERNEL_LOAD_PAIRS
 
 
 def walter_from_1982(value_1982: npt.ArrayLike) -> Array:
@@ -156,7 +146,7 @@ class CookTorrance(Model):
         # Below KERNEL_MIN_PAIRS the parallel kernel's wake-up after idle (~7 ms measured on the
         # 2-core VM) outweighs its speed, while numpy takes ~1 ms for 4096 pairs.
         pairs = max(np.size(wi), np.size(wo)) // 3
-        if pairs < KERNEL_MIN_PAIRS or not _kernel_worth_loading(pairs):
+        if pairs < KERNEL_MIN_PAIRS or not runtime.load_due("numba", pairs, KERNEL_LOAD_PAIRS):
             return super().eval(wi, wo)
         f = self.compiled_eval(wi, wo)
         return super().eval(wi, wo) if f is None else f

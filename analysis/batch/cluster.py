@@ -7,7 +7,7 @@ processes, so a worker killed or lost (OOM, a node that goes away) takes only it
 runs that task again on another worker (up to ``distributed.scheduler.allowed-failures`` times, then it
 reports ``KilledWorker``, which the batch records as that task's failure). Dask's own nanny pins each worker's
 BLAS and OpenMP to one thread, which is what keeps two workers from fighting over one core (gonio holds numba's
-and Dr.Jit's pools to the same, model/threads.py).
+and Dr.Jit's pools to the same, model/runtime.py).
 
 A local cluster's workers keep glibc's own malloc settings: Dask's nanny would start them with
 ``MALLOC_TRIM_THRESHOLD_=65536`` (to hand freed memory back to the system at once), which cost an analysis

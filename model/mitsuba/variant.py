@@ -28,7 +28,7 @@ from collections.abc import Iterator
 import drjit as dr
 import mitsuba as mi
 
-from model.threads import drjit_thread_budget
+from model.runtime import drjit_thread_budget
 
 drjit_thread_budget()  # a Dask worker's OMP_NUM_THREADS=1 holds for Dr.Jit's pool too
 
