@@ -91,7 +91,7 @@ class Frame:
 
 
 def _positive(x: float) -> bool:
-    """Finite and > 0; a plain float without numpy's call (~1 us, twice a frame, a frame copied a point or two)."""
+    """Finite and > 0; a plain float without numpy's call (twice a frame, a frame copied a point or two)."""
     if type(x) is float:
         return math.isfinite(x) and x > 0
     return bool(np.isfinite(x) and x > 0)

@@ -192,7 +192,7 @@ def write_report(
     say(f"wrote {out / 'fit.json'}")
 
     # The export closes over the chosen model alone: handed to the export standby it is pickled, and the analysis
-    # would be its samples, every candidate and a MERL source's table (39 MB, 20 ms to pickle and as long to load).
+    # would be its samples, every candidate and a MERL source's table (tens of MB to pickle and to load again).
     chosen = a.selection.chosen.model
 
     def export() -> tuple[dict[str, Path], dict[str, str]]:

@@ -79,10 +79,9 @@ def _figure_modules() -> None:
 
 
 def _export_modules() -> None:
-    # Mitsuba's import and its variant's first load (about 0.45 CPU s) need no fit, nor do the exports' seeded
-    # draws, error grid and Mitsuba's first-use costs (prepare_exports: about 0.05 CPU s that the export no longer
-    # spends after the fit); an export that cannot load Mitsuba fails the same way when it runs, so nothing is
-    # raised here.
+    # Mitsuba's import and its variant's first load need no fit, nor do the exports' seeded draws, error grid and
+    # Mitsuba's first-use costs (prepare_exports: what the export then no longer spends after the fit); an export
+    # that cannot load Mitsuba fails the same way when it runs, so nothing is raised here.
     with contextlib.suppress(Exception):
         from analysis.exports.write import prepare_exports  # Mitsuba, drjit
         from model.mitsuba.variant import pick_variant
@@ -95,7 +94,7 @@ def _analyze(args: argparse.Namespace) -> int:
     from model.runtime import CollectorPause, Standby
 
     # The garbage collector is paused while this process and the standbys import: an import is many objects that
-    # live as long as the process, and the collector's passes over them (a tenth of importing scipy and
+    # live as long as the process, and the collector's passes over them (a visible share of importing scipy and
     # matplotlib) free nothing. The standbys keep theirs paused after their imports (runtime.imports_done), this
     # process resumes its own after them (_analyze_with); a caller that had paused it keeps it paused.
     with CollectorPause() as paused:

@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 
 
 def _rig(path: str | None) -> RigConfig:
-    # Imported here, not at the top: the configuration's schema (pydantic) costs most of a second, and
+    # Imported here, not at the top: the configuration's schema (pydantic) is slow to import, and
     # `gonio --help` or `gonio analyze` need none of it.
     from rig.run.config.files import load_rig, rig_config
     from rig.run.config.schema import RigFile

@@ -33,10 +33,10 @@ FORMS: tuple[str, ...] = ("walter", "cook_torrance_1982")
 #: bit for bit in float64 (tests/model/test_kernels.py), so this only trades speed.
 KERNEL_MIN_PAIRS = 4096
 #: Pairs numpy evaluates in a process without numba before the first large batch loads it for the kernel.
-#: Importing numba and loading a cached kernel costs about 0.8 CPU s (measured on the 2-core EPYC VM), what numpy
-#: takes for about a million GGX pairs: a one-off analysis (some 10^5 pairs, gonio analyze) never pays it, while a
-#: long fit or a render pays it within its first second of numpy. Where numba is imported already (a run's HDR
-#: merge, the benchmarks), the kernel is used at once.
+#: Importing numba and loading a cached kernel costs about what numpy takes for a million GGX pairs
+#: (docs/benchmarks.md, gonio analyze): a one-off analysis (some 10^5 pairs) never pays it, while a long fit or a
+#: render pays it early on. Where numba is imported already (a run's HDR merge, the benchmarks), the kernel is used
+#: at once.
 #: The pairs are counted for the whole process (:func:`model.runtime.load_due`), over every CookTorrance.
 KERNEL_LOAD_PAIRS = 1_000_000
 
@@ -143,8 +143,7 @@ class CookTorrance(Model):
 
     def eval(self, wi: npt.ArrayLike, wo: npt.ArrayLike) -> Array:
         """BRDF value f_r in 1/sr (cosine excluded); the compiled kernel where it applies, else numpy."""
-        # Below KERNEL_MIN_PAIRS the parallel kernel's wake-up after idle (~7 ms measured on the
-        # 2-core VM) outweighs its speed, while numpy takes ~1 ms for 4096 pairs.
+        # Below KERNEL_MIN_PAIRS the parallel kernel's wake-up after idle outweighs its speed over numpy.
         pairs = max(np.size(wi), np.size(wo)) // 3
         if pairs < KERNEL_MIN_PAIRS or not runtime.load_due("numba", pairs, KERNEL_LOAD_PAIRS):
             return super().eval(wi, wo)

@@ -4,9 +4,8 @@ heavy module is worth loading. It imports nothing of gonio's, so every layer may
 **Thread pools.** numba's and OpenBLAS's workers sleep between calls instead of spinning. By default the OpenMP
 runtime behind numba's ``omp`` threading layer (libgomp) spins its workers after each parallel call, and OpenBLAS
 runs one spinning thread per core. On a shared or loaded machine the spinning threads take the cores from whatever
-runs next. Measured on a 2-vCPU EPYC at load average 8-10 (shared), with the kernel and a 30000 x 6 SVD (the fits'
-size) alternating: the 10k-pair GGX evaluation took a median 7-27 ms with the defaults and 1.5-8 ms under this
-policy, the SVD 42-88 ms and 7-16 ms.
+runs next: with the kernel and a fit-sized SVD alternating, both ran several times quicker under this policy
+(docs/benchmarks.md, model throughput).
 
 :func:`apply_thread_policy` is the one place this is set. ``model/__init__.py`` runs it (by importing this module)
 before anything else, and so does every entry point before it imports numpy (``gonio/__init__.py``,
@@ -181,8 +180,8 @@ def without_gc(fn: Callable[[], Any]) -> Any:
     """``fn()`` with the cyclic garbage collector paused, then one pass over what it allocated.
 
     A figure is tens of thousands of objects that live until it is saved: the collector's passes while it is built
-    find nothing to free, and each full one walks every loaded module's objects too (a tenth of a 1000-point
-    run's drawing). One young-generation pass afterwards frees the figure's reference cycles.
+    find nothing to free, and each full one walks every loaded module's objects too. One young-generation pass
+    afterwards frees the figure's reference cycles.
     """
     with CollectorPause(collect_after=True):
         return fn()
@@ -192,12 +191,11 @@ def imports_done() -> None:
     """In a standby after its imports: freeze what they made, and leave the collector paused for the one call the
     standby runs before it ends (``gonio analyze`` pauses the collector while its processes import).
 
-    An import is many objects that live as long as the process, so the collector's passes over them (a tenth of
-    importing scipy and matplotlib) free nothing; frozen, later full passes skip them too. The call's own garbage
-    ends with the process: a figure's reference cycles are freed by a pass over everything it allocated (0.1 CPU
-    s after a 1000-point run's slices), which a process about to end need not make; the figure workers it forks
-    inherit the paused collector (see :func:`without_gc`). Only for a forked process that ends with its work:
-    frozen objects are never collected.
+    An import is many objects that live as long as the process, so the collector's passes over them free nothing;
+    frozen, later full passes skip them too. The call's own garbage ends with the process: a figure's reference
+    cycles are freed by a pass over everything it allocated, which a process about to end need not make; the figure
+    workers it forks inherit the paused collector (see :func:`without_gc`). Only for a forked process that ends with
+    its work: frozen objects are never collected.
     """
     gc.freeze()
     gc.disable()

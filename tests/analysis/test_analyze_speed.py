@@ -97,7 +97,7 @@ print(len(figures.files), sorted(m for m in sys.modules if m.split(".")[0] == "s
 
 
 def test_the_figures_are_drawn_without_scipy(tmp_path: Path) -> None:
-    # gonio analyze forks its figures' process before loading scipy (0.3 CPU s), so that process loads matplotlib
+    # gonio analyze forks its figures' process before loading scipy (a costly import), so that process loads matplotlib
     # while the main one loads scipy: that holds only while reading a fit's results and drawing them need no scipy.
     fitted = subprocess.run([sys.executable, "-c", FIT_AND_PICKLE, str(tmp_path)], cwd=ROOT, capture_output=True,
                             text=True, timeout=600)  # fmt: skip

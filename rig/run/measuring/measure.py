@@ -166,8 +166,8 @@ def level_of(hdr: HdrImage, roi: Box | None) -> Level:
 def _percentile(values: npt.NDArray[np.float64], q: float) -> float:
     """``np.percentile(values, q)`` (linear method) of a 1-D array of finite values, by numpy's own arithmetic.
 
-    numpy's general quantile machinery cost ~35 us a reading for a 16-pixel ROI; this is what it comes down
-    to there: the virtual index (n - 1) q / 100, the two order statistics around it (partitioned at numpy's
+    numpy's general quantile machinery was a visible share of a reading for a 16-pixel ROI; this is what it comes
+    down to there: the virtual index (n - 1) q / 100, the two order statistics around it (partitioned at numpy's
     points), numpy's lerp.
     """
     n = values.size
@@ -267,7 +267,7 @@ class _Check:
 
 
 #: The last settings' check settings and crop: a run reads every point with one CaptureSettings (two
-#: dataclasses.replace calls a point, ~3 us each, for the same answer).
+#: dataclasses.replace calls a point, for the same answer).
 _last_check: tuple[CaptureSettings, CaptureSettings, Box | None] | None = None
 
 
@@ -291,7 +291,7 @@ def _check_settings(settings: CaptureSettings) -> tuple[CaptureSettings, Box | N
 def _cropped(frame: Frame, crop: Box) -> Frame:
     """``frame`` cut to ``crop`` (pixels), its origin moved with it: what dataclasses.replace makes.
 
-    A Frame's fields copied as they are (~1 us against replace's ~7: its __init__ and checks run again on
+    A Frame's fields copied as they are (cheaper than replace, whose __init__ and checks run again on
     fields that passed them; the cut keeps the data's dimensions, the one thing checked that changes).
     """
     cx, cy = crop[0], crop[1]

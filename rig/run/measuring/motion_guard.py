@@ -40,7 +40,7 @@ class MotionGuard:
         self._link_homes = False
 
     def _homing(self, link: MotionLink) -> HomingLink | None:
-        """``link`` if it homes (GRBL), else None; asked once a link: a runtime Protocol check costs ~12 us a move."""
+        """``link`` if it homes (GRBL), else None; asked once a link, not every move."""
         if link is not self._link:
             self._link, self._link_homes = link, isinstance(link, HomingLink)
         return cast(HomingLink, link) if self._link_homes else None
