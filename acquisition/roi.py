@@ -124,13 +124,7 @@ class RoiReading:
 
 
 def channel_list(a: npt.ArrayLike) -> list[Any]:
-    """``np.atleast_1d(a).tolist()``: per-channel numbers as a list (0-d or 1-d arrays without numpy's call).
-
-    numpy's atleast_1d is a call's overhead for an array that is already what it returns: four a dark check
-    and four a journal record, each point.
-    """
-    if type(a) is np.ndarray and a.ndim <= 1:
-        return list(a.reshape(-1).tolist())
+    """``np.atleast_1d(a).tolist()``: per-channel numbers as a list."""
     return list(np.atleast_1d(a).tolist())
 
 
