@@ -5,4 +5,4 @@ planning (exposure/), the HDR merge (hdr/), the sensor's noise (noise.py), ROI r
 calibration against a reference target (calibration.py). Imports model only.
 """
 
-import model.threads  # noqa: F401 (the thread pools' policy, before the HDR merge's numba pool starts)
+import model.runtime  # noqa: F401 (the thread pools' policy, before the HDR merge's numba pool starts)

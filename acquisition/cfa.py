@@ -140,7 +140,7 @@ def counts_above_black(frame: Frame, roi: Box | None = None) -> FloatArray:
     return above[y0:y1, x0:x1]
 
 
-#: ``HdrImage.saturated`` and ``HdrImage.dark`` are these bits of ``flags``; as plain ints the masks cost a third
+#: ``HdrImage.saturated`` and ``HdrImage.dark`` are these bits of ``flags``; as plain ints the masks cost less
 #: (an IntFlag operand sends numpy through the enum's attribute lookups). The ROI only asks which are non-zero.
 _SATURATED_BITS = int(HdrFlag.SATURATED)
 _DARK_BITS = int(HdrFlag.DARK | HdrFlag.BELOW_BLACK)

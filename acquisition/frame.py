@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Literal, Protocol, runtime_checkable
 
@@ -91,9 +90,7 @@ class Frame:
 
 
 def _positive(x: float) -> bool:
-    """Finite and > 0; a plain float without numpy's call (~1 us, twice a frame, a frame copied a point or two)."""
-    if type(x) is float:
-        return math.isfinite(x) and x > 0
+    """Finite and > 0 (a Python or numpy number)."""
     return bool(np.isfinite(x) and x > 0)
 
 

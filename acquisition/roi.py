@@ -97,7 +97,7 @@ class RoiReading:
     @property
     def dark(self) -> bool:
         """Whether a channel is dark: most of its pixels flagged dark, or its mean within 3 errors of zero."""
-        # In Python numbers (a reading has 1-3 channels; numpy's calls cost 10 us of the runner's, twice a point):
+        # In Python numbers (a reading has 1-3 channels, where numpy's per-call cost is most of the work):
         # the same comparisons, NaN included (not above: undetected).
         n_dark, used = channel_list(self.n_dark), channel_list(self.n_used)
         mean, se = channel_list(self.mean), channel_list(self.std_error)
@@ -124,13 +124,7 @@ class RoiReading:
 
 
 def channel_list(a: npt.ArrayLike) -> list[Any]:
-    """``np.atleast_1d(a).tolist()``: per-channel numbers as a list (0-d or 1-d arrays without numpy's call).
-
-    numpy's atleast_1d costs ~1 us a call, for an array that is already what it returns: four a dark check
-    and four a journal record, each point.
-    """
-    if type(a) is np.ndarray and a.ndim <= 1:
-        return list(a.reshape(-1).tolist())
+    """``np.atleast_1d(a).tolist()``: per-channel numbers as a list."""
     return list(np.atleast_1d(a).tolist())
 
 
@@ -260,7 +254,7 @@ def reduce_roi(
         raise RoiError(f"{int(n_flagged.max())} of {n_pixels} ROI pixels are flagged (on_flagged='raise')")
     if not n_flagged.any() and np.isfinite(x).all() and np.isfinite(v).all() and not (v < 0).any():
         # Every pixel is used (the usual reading): the same sums on the same arrays as below, without
-        # the masks that would select them all (a few microseconds each, on a 16-pixel ROI the whole cost).
+        # the masks that would select them all (on a 16-pixel ROI, most of the reduction's cost).
         return _all_used(x, v, n_pixels - n_flagged, n_flagged, n_dark, rad.ndim == 2, error_model)
     used = ~flagged if on_flagged == "exclude" else np.ones_like(flagged)
     lower_bound = on_flagged == "lower_bound" and bool(n_flagged.any())

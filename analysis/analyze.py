@@ -45,8 +45,8 @@ from model.serialize import to_json_dict
 from rig.run.storage.store import MANIFEST
 
 if TYPE_CHECKING:
-    from analysis.figure_pool import Standby
     from analysis.report.files import Figures
+    from model.runtime import Standby
 
 
 def load_and_fit(
@@ -174,14 +174,14 @@ def write_report(
     ``mitsuba_plugin`` adds export/mitsuba_gonio_plugin.xml, the exact model for processes that have gonio;
     ``mitsuba_stock`` (auto, tabulated, projection) picks what export/mitsuba_bsdf.* hold for a model
     without a native Mitsuba plugin (auto: the projection within 5 % RMS, else whichever Mitsuba measures closer).
-    With ``jobs`` > 1 the figures and the exports are made side by side (analysis/figure_pool.py, where it is
+    With ``jobs`` > 1 the figures and the exports are made side by side (model/runtime.py, where it is
     safe): the figures in ``standby`` (a process forked before the fit that loads matplotlib meanwhile, as
     ``gonio analyze`` starts one) while the exports are made here, or else the exports in a forked child while the
     figures are drawn here and in ``jobs`` - 1 workers. With a forked ``exporter`` as well (a standby that loaded
     Mitsuba during the fit) the exports are made there, and this process only waits and writes the page. The files
     are the same bytes either way.
     """
-    from analysis.figure_pool import ForkedCall
+    from model.runtime import ForkedCall
 
     say = log or (lambda _: None)
     out = Path(out)
@@ -192,7 +192,7 @@ def write_report(
     say(f"wrote {out / 'fit.json'}")
 
     # The export closes over the chosen model alone: handed to the export standby it is pickled, and the analysis
-    # would be its samples, every candidate and a MERL source's table (39 MB, 20 ms to pickle and as long to load).
+    # would be its samples, every candidate and a MERL source's table (tens of MB to pickle and to load again).
     chosen = a.selection.chosen.model
 
     def export() -> tuple[dict[str, Path], dict[str, str]]:

@@ -75,10 +75,10 @@ def fit_ladder(
     Samples with a direction covariance are fitted with effective errors (photometric plus angular,
     :func:`model.fit.angular.fit_with_angular`); ``angular``, if given, receives each candidate's angular
     variance per sample (N, C) in (1/sr)^2. ``progress``: a bar with ETA over the candidates (stderr).
-    ``jobs`` > 1: a forked process fits candidates beside this one where that is safe (analysis/figure_pool.py);
+    ``jobs`` > 1: a forked process fits candidates beside this one where that is safe (model/runtime.py);
     each candidate's fit is the same either way (its own seeded starts), and so is what is logged, in ladder order.
     """
-    from analysis.figure_pool import ForkedCall, fork_safe
+    from model.runtime import ForkedCall, fork_safe
 
     def fit_one(i: int) -> Outcome:
         return _fit_candidate(ladder[i], samples, loss, starts, seed)

@@ -2,7 +2,7 @@
 
 tqdm.auto picks the notebook widget inside Jupyter and the text bar on a terminal; bars write to stderr, so
 stdout keeps only the result. A disabled bar (``--quiet``, a batch worker, the tests) costs nothing: it is a
-stand-in that does not even import tqdm (tqdm.auto brings asyncio, a tenth of a second of ``gonio analyze``).
+stand-in that does not even import tqdm (tqdm.auto brings asyncio, which ``gonio analyze`` otherwise never loads).
 """
 
 from __future__ import annotations

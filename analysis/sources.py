@@ -69,7 +69,7 @@ def _run_rows(path: Path) -> tuple[RunStore, Any, Any, dict[str, Any], list[dict
         store = RunStore.read(path)
         status = store.status()
         rig, sweep = configs_of(store)
-        records = store.records_to_read()  # only read here: copying a 1000-point journal cost ~0.1 CPU s
+        records = store.records_to_read()  # only read here: copying a long journal would cost the analysis
         check_records(records, path / JOURNAL)
     except (RunStoreError, ValueError, KeyError) as exc:
         raise AnalysisError(f"{path}: not a readable run directory: {exc}") from exc

@@ -73,7 +73,7 @@ def _bsdf() -> Any:
 def mitsuba_llvm_eval(bsdf: Any, wi: Array, wo: Array) -> Array:
     """f_r cos(theta_o) in 1/sr of a Mitsuba BSDF in a jit variant, all pairs in one call, (N, 3) float32."""
     si = dr.zeros(mi.SurfaceInteraction3f)
-    # Column by column: drjit casts to float32 itself, faster than a transposed numpy copy (2.9 vs 3.6 ms).
+    # Column by column: drjit casts to float32 itself, quicker than a transposed numpy copy.
     si.wi = mi.Vector3f(wi[:, 0], wi[:, 1], wi[:, 2])
     f = bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(wo[:, 0], wo[:, 1], wo[:, 2]))
     return np.array(f).T  # drjit gives (3, N); the transpose is a view
@@ -102,7 +102,7 @@ def block_medians(fns: dict[str, Callable[[], object]], rounds: int, per_block: 
 
     Each round times every fn in turn, so a change in the machine's load hits all of them; each block
     starts with an untimed call because numba's OpenMP threads and drjit's pool spin for a while after
-    a call and roughly halve the speed of the other library's next call (measured: 8 -> 18 ms).
+    a call and slow the other library's next call (docs/benchmarks.md).
     """
     times: dict[str, list[float]] = {name: [] for name in fns}
     for _ in range(rounds):

@@ -4,4 +4,4 @@ It reaches every package and nothing imports it. One module per command group (c
 (demo.py) and ``gonio models`` (models_demo.py); ``cli.py`` holds the parser and the exit codes.
 """
 
-import model.threads  # noqa: F401 (the thread pools' policy, before anything starts numba or BLAS)
+import model.runtime  # noqa: F401 (the thread pools' policy, before anything starts numba or BLAS)

@@ -27,7 +27,7 @@ from gonio.cli_options import add_command, add_quiet_option, positive_count
 from gonio.cli_run import EXIT_OK
 
 if TYPE_CHECKING:
-    from analysis.figure_pool import Standby
+    from model.runtime import CollectorPause, Standby
 
 _MODELS_HELP = ("lambert, lambert_ggx (dielectric), lambert_ggx_schlick, ggx_conductor, ggx_conductor_lambert, "
                 "blinn_phong, ward (anisotropic)")  # fmt: skip
@@ -70,10 +70,9 @@ def _figure_modules() -> None:
 
 
 def _export_modules() -> None:
-    # Mitsuba's import and its variant's first load (about 0.45 CPU s) need no fit, nor do the exports' seeded
-    # draws, error grid and Mitsuba's first-use costs (prepare_exports: about 0.05 CPU s that the export no longer
-    # spends after the fit); an export that cannot load Mitsuba fails the same way when it runs, so nothing is
-    # raised here.
+    # Mitsuba's import and its variant's first load need no fit, nor do the exports' seeded draws, error grid and
+    # Mitsuba's first-use costs (prepare_exports: what the export then no longer spends after the fit); an export
+    # that cannot load Mitsuba fails the same way when it runs, so nothing is raised here.
     with contextlib.suppress(Exception):
         from analysis.exports.write import prepare_exports  # Mitsuba, drjit
         from model.mitsuba.variant import pick_variant
@@ -83,18 +82,14 @@ def _export_modules() -> None:
 
 
 def _analyze(args: argparse.Namespace) -> int:
-    import gc
+    from model.runtime import CollectorPause, Standby
 
     # The garbage collector is paused while this process and the standbys import: an import is many objects that
-    # live as long as the process, and the collector's passes over them (a tenth of importing scipy and
-    # matplotlib) free nothing. The standbys resume theirs after their imports (figure_pool.imports_done), this
-    # process after its own (below); a caller that had paused it keeps it paused.
-    collecting = gc.isenabled()
-    gc.disable()
-    try:
+    # live as long as the process, and the collector's passes over them (a visible share of importing scipy and
+    # matplotlib) free nothing. The standbys keep theirs paused after their imports (runtime.imports_done), this
+    # process resumes its own after them (_analyze_with); a caller that had paused it keeps it paused.
+    with CollectorPause() as paused:
         import numpy  # noqa: F401  (which every process needs: loaded once, before the forks)
-
-        from analysis.figure_pool import Standby
 
         # The figures' process loads matplotlib and the report's modules, the exports' process Mitsuba, while this
         # one loads scipy and the run's configuration and fits; they draw and export once the fit is handed to them
@@ -107,22 +102,17 @@ def _analyze(args: argparse.Namespace) -> int:
             import scipy.special  # noqa: F401
 
             with Standby(_export_modules) if args.jobs > 1 else contextlib.nullcontext() as exporter:
-                return _analyze_with(args, standby, exporter, collecting)
-    finally:
-        if collecting:
-            gc.enable()
+                return _analyze_with(args, standby, exporter, paused)
 
 
 def _analyze_with(args: argparse.Namespace, standby: Standby | None, exporter: Standby | None = None,
-                  collecting: bool = True) -> int:  # fmt: skip
-    import gc
-
+                  paused: CollectorPause | None = None) -> int:  # fmt: skip
     from analysis.analyze import default_out, load_and_fit, stderr_log, write_report
     from analysis.batch.records import staged_dir
     from analysis.ladder import parse_models
 
-    if collecting:
-        gc.enable()  # not frozen as the standbys' imports are: this process may be a caller's that lives on
+    if paused is not None:
+        paused.resume()  # not frozen as the standbys' imports are: this process may be a caller's that lives on
 
     log = None if args.quiet else stderr_log
     models = parse_models(args.models) if args.models else None

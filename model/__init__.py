@@ -6,7 +6,7 @@ the surface, ``eval`` returns f_r in 1/sr without the cosine, radians inside and
 boundary, float64 by default and float32 accepted.
 """
 
-import model.threads  # noqa: F401 (first: sets the thread pools' policy before numba or BLAS start)
+import model.runtime  # noqa: F401 (first: sets the thread pools' policy before numba or BLAS start)
 from model._params import ParameterError
 from model.ashikhmin_shirley import AshikhminShirley
 from model.base import BRDF, Model

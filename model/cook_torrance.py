@@ -18,13 +18,12 @@ glTF's "roughness" r maps to alpha = r^2.
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
-from model import fresnel, microfacet
+from model import fresnel, microfacet, runtime
 from model._params import Channel, ParameterError, channel, choice, scalar
 from model.base import Array, Model, Pair
 
@@ -34,21 +33,12 @@ FORMS: tuple[str, ...] = ("walter", "cook_torrance_1982")
 #: bit for bit in float64 (tests/model/test_kernels.py), so this only trades speed.
 KERNEL_MIN_PAIRS = 4096
 #: Pairs numpy evaluates in a process without numba before the first large batch loads it for the kernel.
-#: Importing numba and loading a cached kernel costs about 0.8 CPU s (measured on the 2-core EPYC VM), what numpy
-#: takes for about a million GGX pairs: a one-off analysis (some 10^5 pairs, gonio analyze) never pays it, while a
-#: long fit or a render pays it within its first second of numpy. Where numba is imported already (a run's HDR
-#: merge, the benchmarks), the kernel is used at once.
+#: Importing numba and loading a cached kernel costs about what numpy takes for a million GGX pairs
+#: (docs/benchmarks.md, gonio analyze): a one-off analysis (some 10^5 pairs) never pays it, while a long fit or a
+#: render pays it early on. Where numba is imported already (a run's HDR merge, the benchmarks), the kernel is used
+#: at once.
+#: The pairs are counted for the whole process (:func:`model.runtime.load_due`), over every CookTorrance.
 KERNEL_LOAD_PAIRS = 1_000_000
-_numpy_pairs = 0
-
-
-def _kernel_worth_loading(pairs: int) -> bool:
-    """Whether a batch of ``pairs`` (>= KERNEL_MIN_PAIRS) goes to the kernel (see KERNEL_LOAD_PAIRS)."""
-    global _numpy_pairs
-    if "numba" in sys.modules:
-        return True
-    _numpy_pairs += pairs
-    return _numpy_pairs > KERNEL_LOAD_PAIRS
 
 
 def walter_from_1982(value_1982: npt.ArrayLike) -> Array:
@@ -153,10 +143,9 @@ class CookTorrance(Model):
 
     def eval(self, wi: npt.ArrayLike, wo: npt.ArrayLike) -> Array:
         """BRDF value f_r in 1/sr (cosine excluded); the compiled kernel where it applies, else numpy."""
-        # Below KERNEL_MIN_PAIRS the parallel kernel's wake-up after idle (~7 ms measured on the
-        # 2-core VM) outweighs its speed, while numpy takes ~1 ms for 4096 pairs.
+        # Below KERNEL_MIN_PAIRS the parallel kernel's wake-up after idle outweighs its speed over numpy.
         pairs = max(np.size(wi), np.size(wo)) // 3
-        if pairs < KERNEL_MIN_PAIRS or not _kernel_worth_loading(pairs):
+        if pairs < KERNEL_MIN_PAIRS or not runtime.load_due("numba", pairs, KERNEL_LOAD_PAIRS):
             return super().eval(wi, wo)
         f = self.compiled_eval(wi, wo)
         return super().eval(wi, wo) if f is None else f

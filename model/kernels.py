@@ -11,27 +11,23 @@ same association, same dtype), so float64 results agree to the last bit except w
 round exp and erfc differently (Beckmann). That is deliberate: near the peak at alpha = 1e-4, D depends
 on 1 - cos_h^2 and one ulp of cos_h moves D by ~1e-8 relative, so "close" arithmetic is not enough.
 
-For the same reason ``fastmath`` is off. Measured on the RGB GGX conductor (1e6 pairs, one thread):
-"nsz" changed no value and gained ~3 % (near the noise); "contract" (FMA) gained ~6 % and changed 22 %
-of the values (by <= 1e-14); every flag together gained ~10 % and changed 58 %. Merging the
-conductor's two divisions into one gained under 4 %: not worth a second formula either.
+For the same reason ``fastmath`` is off: on the RGB GGX conductor "contract" (FMA) changed 22 % of the values
+(by <= 1e-14) and every flag together 58 %, each for a few per cent of speed ("nsz" changed no value and gained
+as little). Merging the conductor's two divisions into one gained as little: not worth a second formula either.
 
 Each configuration (distribution, masking, Fresnel kind, channel count) is its own compiled loop: the
 choices are closure constants, so their branches fold away and LLVM vectorises the straight-line body.
-The first call of a configuration and dtype compiles it (about 5 CPU s on the Zen 3 EPYC); ``cache=True``
-keeps it on disk.
+The first call of a configuration and dtype compiles it (seconds of CPU); ``cache=True`` keeps it on disk.
 
 What is ISA-specific: numba compiles for the host CPU (the disk cache is keyed by it), so the vector
 width and LLVM's inlining and vectorising decisions are the target's. Every GGX configuration vectorises on
 AVX2 (4-wide float64, 8-wide float32 vsqrt/vdiv; read from ``inspect_asm`` with numba targeting znver3) and on
-AVX-512 (zmm registers, 8-wide float64, 16-wide float32; a Zen 5 EPYC, LLVM 22's znver5 target), provided the
-per-channel values reach the loop as tuples (see :func:`_params`): as arrays, the dielectric and Schlick loops
-stayed scalar on AVX2, and on AVX-512 every loop reloaded them through masked gathers and stored through
-scatters. Measured on one thread of the Zen 5 (1e6 RGB pairs): conductor 18 -> 7-8 ms, dielectric 9-12 -> 7 ms,
-Schlick 9-11 -> 3-4 ms; the AVX2 code on the same CPU: dielectric 34 -> 10 ms, Schlick 17 -> 6-7 ms, conductor
-unchanged at 11-12 ms. Beckmann stays scalar on any target (libm exp and erfc; numba would vectorise them only
-through Intel's SVML). sqrt and division are correctly rounded in every width, so the values do not depend on
-the ISA.
+AVX-512 (zmm registers, 8-wide float64, 16-wide float32; LLVM 22's znver5 target), provided the per-channel values
+reach the loop as tuples (see :func:`_params`): as arrays, the dielectric and Schlick loops stayed scalar on AVX2,
+and on AVX-512 every loop reloaded them through masked gathers and stored through scatters, several times slower
+(docs/benchmarks.md, model throughput). Beckmann stays scalar on any target (libm exp and erfc; numba would
+vectorise them only through Intel's SVML). sqrt and division are correctly rounded in every width, so the values
+do not depend on the ISA.
 """
 
 from __future__ import annotations
@@ -152,10 +148,10 @@ def _fresnel(cd: float, cd2: float, s2: float, p: float, q: float, kc: Consts, f
 # Inlined into the parfor body as numba IR (so are _lambda and _fresnel), with unsigned indices and no
 # load inside a conditional expression: a call that LLVM does not inline, the wraparound test of a
 # signed index, or a conditional load (numba lowers `a[i] if c else 0` to a branch), each kept the whole
-# loop scalar. Whether LLVM inlines a call is its target's cost model: on Zen 3 (AVX2), with the helpers
+# loop scalar. Whether LLVM inlines a call is its target's cost model: on AVX2 (znver3), with the helpers
 # left to LLVM, every sqrt and division stayed scalar (vsqrtsd, vdivsd). Inlining _lambda and _fresnel in
-# numba was enough for the loop to vectorise; inlining _specular too vectorised the same but tripled the
-# compile time of a configuration (3.4 -> 9.9 CPU s; these two: 4.9 s).
+# numba was enough for the loop to vectorise; inlining _specular too vectorised the same but about tripled the
+# compile time of a configuration.
 @numba.njit(inline="always", **_JIT)
 def _pair(
     j: int, o: int, wi: Array, wo: Array, out: Array, p: Consts, q: Consts, rho: Consts, kc: Consts, mp: Consts,
@@ -247,8 +243,8 @@ def _params(m: MicrofacetParams, dtype: np.dtype, nc: int) -> tuple[Consts, Cons
 
     All are tuples of the working dtype's scalars, which the kernel receives as values: given as arrays, LLVM
     cannot tell that the loop's stores to ``out`` leave them unchanged, so it loads them again in every
-    iteration; on AVX-512 (Zen 5) it did that with masked gathers, and wrote ``out`` with scatters, which made
-    the RGB GGX conductor 2.5x slower on one thread (15 ms per 1e6 pairs against 6 ms, the same values).
+    iteration; on AVX-512 it did that with masked gathers, and wrote ``out`` with scatters, which made the loop
+    several times slower for the same values.
     """
     t = dtype.type
 

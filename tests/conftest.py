@@ -2,7 +2,7 @@ import os
 
 from hypothesis import settings
 
-import model.threads  # noqa: F401 (the thread pools' policy first, as every entry point: model/threads.py)
+import model.runtime  # noqa: F401 (the thread pools' policy first, as every entry point: model/runtime.py)
 
 # No test may depend on the machine's speed: a shared CI host loaded 5-10x runs an example in many times its
 # usual time, so Hypothesis's per-example deadline is off in every profile (the default one included).

@@ -110,7 +110,7 @@ def _mean_level_snr(
     """``roi_snr`` at the mean level alone, in Python floats: the planner's bisection calls it ~150 times a plan.
 
     The same operations in the same order as ``_merged_variance`` on a one-element array, so the same bits
-    (IEEE arithmetic and sqrt are correctly rounded in numpy and in Python alike), at a tenth of the cost.
+    (IEEE arithmetic and sqrt are correctly rounded in numpy and in Python alike), without numpy's per-call cost.
     """
     rg = level.mean_dn_per_s * gain
     g = noise.e_per_dn / gain
@@ -269,8 +269,8 @@ def pixel_snr(
 def _geomspace(lo: float, hi: float, num: int) -> list[float]:
     """``np.geomspace(lo, hi, num).tolist()`` for 0 < lo < hi and num > 1: its steps without its generality.
 
-    numpy's geomspace, logspace and linspace (sign handling, dtypes, broadcasting) cost ~15 us of a plan's
-    ~100; these are the operations they come down to for two positive floats, in their order.
+    numpy's geomspace, logspace and linspace (sign handling, dtypes, broadcasting) were a large share of a plan's
+    time; these are the operations they come down to for two positive floats, in their order.
     """
     if not (0 < lo < hi and num > 1):
         return list(np.geomspace(lo, hi, num).tolist())

@@ -1,10 +1,10 @@
 """Loading the HDR merge's compiled passes on first use, with a notice first where they must be compiled.
 
 The numba passes (:mod:`acquisition.hdr.kernel`) serve only images too large for the numpy pass, so they
-are imported when such an image is first merged, not at start-up: importing numba costs about a second,
+are imported when such an image is first merged, not at start-up: importing numba is a large part of a start,
 and a run on ROI crops never needs it. A caller that shows progress arms a notice with
 :func:`notify_before_compiling`; it is called once, before the first load, if numba's on-disk cache does not
-hold the passes yet (compiling them takes tens of seconds on a first run).
+hold the passes yet (compiling them is slow on a first run).
 """
 
 from __future__ import annotations

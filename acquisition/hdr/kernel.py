@@ -3,7 +3,7 @@
 Holds ``_merge_kernel`` (one compiled, all-cores pass per configuration), ``run_compiled`` (pads the
 bracket's frames, so brackets of similar length share a compilation, and calls it) and ``_top_counts`` (the
 saturation plateau's count). Imported only for images too large for the numpy pass of
-:mod:`acquisition.hdr.small`, which computes the same bits: importing numba costs about a second. The
+:mod:`acquisition.hdr.small`, which computes the same bits: importing numba is a large part of a start. The
 estimator is described in :mod:`acquisition.hdr.merge`.
 """
 
@@ -25,8 +25,8 @@ if TYPE_CHECKING:
 _JIT: dict[str, Any] = {"fastmath": False, "error_model": "numpy", "boundscheck": False, "cache": True}
 
 
-#: Below this many pixel values the merge runs on one core: waking the thread pool costs more than it saves
-#: on an ROI crop (a 12 x 12 x 3 crop took milliseconds in parallel on 2 busy cores, microseconds serially).
+#: Below this many pixel values the merge runs on one core: on an ROI crop, waking the thread pool (on busy cores,
+#: waiting for a time slice) costs more than the parallel pass saves.
 SERIAL_BELOW = 1 << 16
 
 
@@ -36,9 +36,9 @@ def _merge_kernel(with_maps: bool, inverse_variance: bool, parallel: bool = True
 
     ``with_maps``: some offset is a per-pixel map. The frame loop runs over the whole (padded) tuple, a
     compile-time length, so LLVM unrolls it and resolves each tuple item statically; padding frames have
-    threshold -inf and are never used. Measured on 1 MP x 3 x 7 frames: a run-time frame count, a run-time
-    tuple index, or the inverse-variance loop present but switched off by a run-time flag each made the
-    sum pass 2-5x slower.
+    threshold -inf and are never used. A run-time frame count, a run-time tuple index, or the inverse-variance
+    loop present but switched off by a run-time flag each kept LLVM from specialising the sum pass, which then
+    ran several times slower (bench/hdr).
     """
 
     @numba.njit(parallel=parallel, **_JIT)
@@ -135,7 +135,7 @@ def run_compiled(prep: Inputs, inverse_variance: bool, signal: npt.NDArray[np.fl
 @numba.njit(**_JIT)
 def _top_counts(flat: npt.NDArray[Any], lo: Any, mid: Any) -> tuple[int, int, Any]:  # pragma: no cover
     # Pixels in [lo, mid), pixels >= mid and their sum, in one branch-free pass. ``lo - lo`` is a zero of
-    # lo's type: integers for integer data (exact sums, and 5x faster than a parallel float reduction).
+    # lo's type: integers for integer data (exact sums, and quicker than a parallel float reduction).
     zero = lo - lo
     n_below = 0
     n_top = 0

@@ -54,9 +54,9 @@ subtracted and dark current is left in: dim pixels read high by ``dark_current *
 the result's metadata says so.
 
 Speed. One compiled pass (numba, all cores) reads each frame once per pixel and keeps the sums in
-registers; a bracket of 7 frames of 1 MP x 3 merges in a few tens of milliseconds. Images of fewer than
-``NUMPY_BELOW`` values a frame (ROI crops) run the same arithmetic in numpy (:mod:`acquisition.hdr.small`, the
-same bits), so numba, about a second to import, loads only for a merge of a larger image.
+registers (bench/hdr times it). Images of fewer than ``NUMPY_BELOW`` values a frame (ROI crops) run the same
+arithmetic in numpy (:mod:`acquisition.hdr.small`, the same bits), so numba, slow to import, loads only for a
+merge of a larger image.
 
 Layout. This module holds the result types (:class:`HdrImage`, :class:`HdrFlag`) and :func:`merge_linear`
 with its weighting decision; bracket validation, frame data, black levels and darks are in

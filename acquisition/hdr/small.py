@@ -1,7 +1,7 @@
 """The linear HDR merge's pass in numpy, for small images: the compiled pass's arithmetic, bit for bit.
 
 Below ``NUMPY_BELOW`` pixel values a frame (an ROI crop) the merge runs here, so numba, whose import and
-start-up take about a second, is not loaded for it: a simulated run with ROI crops never loads it. Every
+start-up are a large part of a run's start, is not loaded for it: a simulated run with ROI crops never loads it. Every
 value is computed with the operations of :func:`acquisition.hdr.kernel._merge_kernel`, in its order and in
 float64, frame by frame (sums accumulate in frame order, as the compiled loop does), so the results are the
 same bits; ``tests/acquisition/test_hdr_small.py`` checks that on random brackets. The estimator is described
@@ -64,8 +64,8 @@ class Inputs(Protocol):
         """DARK below this signal in the longest frame (counts)."""
 
 
-#: Frames of fewer pixel values than this merge in numpy. At ROI sizes (a few hundred values) a numpy pass
-#: takes 8-20 us against the compiled pass's 3-5 us a call, and spares loading numba (0.5-1 s on 2 cores).
+#: Frames of fewer pixel values than this merge in numpy. At ROI sizes (a few hundred values) what the numpy pass
+#: costs over the compiled one is far less than loading numba, which a run on ROI crops then never does.
 NUMPY_BELOW = 1 << 13
 
 

@@ -7,16 +7,15 @@ processes, so a worker killed or lost (OOM, a node that goes away) takes only it
 runs that task again on another worker (up to ``distributed.scheduler.allowed-failures`` times, then it
 reports ``KilledWorker``, which the batch records as that task's failure). Dask's own nanny pins each worker's
 BLAS and OpenMP to one thread, which is what keeps two workers from fighting over one core (gonio holds numba's
-and Dr.Jit's pools to the same, model/threads.py).
+and Dr.Jit's pools to the same, model/runtime.py).
 
 A local cluster's workers keep glibc's own malloc settings: Dask's nanny would start them with
-``MALLOC_TRIM_THRESHOLD_=65536`` (to hand freed memory back to the system at once), which cost an analysis
-0.5 s of system time in 4.7 s (page faults 14x: 139,000 against 9,900 per input, on the 2-core EPYC), for
-memory an analysis frees and takes again at the next input. Its scheduler and workers also check their event
-loops and sample the running task's stack less often than Dask's defaults (:data:`LOCAL_CONFIG`): an idle local
-cluster of 2 workers kept 0.31 of the 2 cores busy with those (every 20 ms and every 10 ms in each process),
-0.07 with these, and that share comes out of the tasks when every core has a worker. A lab's own cluster keeps
-its own configuration.
+``MALLOC_TRIM_THRESHOLD_=65536`` (to hand freed memory back to the system at once), which made every input's
+analysis fault its pages in again (system time), for memory an analysis frees and takes again at the next
+input. Its scheduler and workers also check their event loops and sample the running task's stack less often
+than Dask's defaults (:data:`LOCAL_CONFIG`): Dask's ticks kept an idle local cluster's cores measurably busy, and
+that share comes out of the tasks when every core has a worker (docs/benchmarks.md, the batch section). A lab's
+own cluster keeps its own configuration.
 """
 
 from __future__ import annotations

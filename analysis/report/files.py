@@ -1,7 +1,7 @@
 """What the report's figures hand back, without matplotlib: the written files, the slices and the coverage.
 
 Apart from the modules that draw, so that the process that writes the page (and unpickles these from the
-process that drew them) never loads matplotlib: that import alone was 0.4 CPU s of ``gonio analyze``.
+process that drew them) never loads matplotlib, one of ``gonio analyze``'s costliest imports.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The report figures' layout: panels placed by fixed margins in inches, on matplotlib's Agg canvas.
 
-Constrained layout measured every tick label of every panel to place them, twice per save: about a third of
+Constrained layout measured every tick label of every panel to place them, twice per save: a large share of
 ``gonio analyze``'s time. The report's figures are regular grids with labels of known size, so fixed margins
 (room for a y label and its tick labels on the left, an x label below, a title above, a legend row or a
 colour bar where asked) place them as well at no cost. No pyplot state: each figure is its own object.
@@ -101,8 +101,8 @@ def eval_channels(brdf: BRDF, wi: Array, wo: Array, channels: int) -> Array:
 def save_figure(fig: Figure, out: Path, name: str, svg: bool) -> tuple[Path, Path | None]:
     """Write NAME.png (and NAME.svg when asked: it costs as much again and is rarely opened)."""
     png, svg_path = out / f"{name}.png", out / f"{name}.svg"
-    # zlib level 3, not PIL's 6: the same pixels, files 5 % larger, and a third less of the encoding's time
-    # (0.17 of the six figures' 1.6 CPU s for a 1000-point run).
+    # zlib level 3, not PIL's 6: the same pixels in slightly larger files, for less of the encoding's time (which
+    # PNG encoding is a visible share of drawing the figures).
     write_atomic(png, lambda tmp: fig.savefig(tmp, format="png", dpi=100, pil_kwargs={"compress_level": PNG_LEVEL}))
     if not svg:
         svg_path.unlink(missing_ok=True)  # a stale copy from an earlier --svg run would not match the PNG

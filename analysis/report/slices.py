@@ -148,8 +148,8 @@ def _error_bars(y: Array, e: Array, log: bool) -> tuple[Array, Array, npt.NDArra
 
 def plot_slices(a: Analysis, ang: Angles, cuts: tuple[Slice, ...], out: Path, y_scale: str, svg: bool) -> FigureFile:
     """Write slices.png (f_r in 1/sr against signed theta_o in degrees): data with 2-sigma bars, every candidate."""
-    # Grids from the start: ax.grid() on each of up to 18 panels restyled every tick it had made (a tenth of the
-    # figure's time); made with the grid on, each tick is drawn so once.
+    # Grids from the start: ax.grid() on each of up to 18 panels restyled every tick it had made; made with the
+    # grid on, each tick is drawn so once.
     with rc_context({"axes.grid": True, "grid.alpha": 0.3}):
         return _plot_slices(a, ang, cuts, out, y_scale, svg)
 
@@ -210,7 +210,7 @@ def _plot_slices(a: Analysis, ang: Angles, cuts: tuple[Slice, ...], out: Path, y
                 pos = pos[pos > 0]
                 bottom = max(float(pos.min()) / 1.5 if pos.size else 1e-6, top * 1e-6)
                 ax.set_ylim(bottom, top * 3)
-                # Plain labels (the default mathtext ones cost seconds per figure), at 1-2-5 over up to two
+                # Plain labels (the default mathtext ones are laid out glyph by glyph), at 1-2-5 over up to two
                 # decades and at the decades beyond.
                 subs = (1.0, 2.0, 5.0) if top * 3 / bottom <= 150 else (1.0,)
                 ax.yaxis.set_major_locator(_InViewLogLocator(subs=subs, numticks=8))

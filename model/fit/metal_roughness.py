@@ -30,7 +30,7 @@ Error. E is estimated again on :data:`ERROR_SAMPLES` fresh pairs (not the fitted
 optimistic), per channel and pooled, together with the worst relative difference |f_mr - f| / f over
 pairs with both directions within :data:`GRAZING_DEG` of the normal (f floored at :data:`REL_FLOOR`
 times the material's RMS value, so zeros of f do not divide), and where that worst pair lies.
-Measured here (0.1-0.4 s each): a gold GGX conductor (alpha 0.3) projects to metallic 1, roughness
+For example: a gold GGX conductor (alpha 0.3) projects to metallic 1, roughness
 0.549 (sqrt 0.3 = 0.548) with E = 1.5 % (Schlick against exact Fresnel, height-correlated against
 separable Smith); a Lambert to metallic 0, roughness 1 with E = 0.9 % and up to 240 % near 80 deg in
 blue, the white F(0.04) lobe and (1 - F) diffuse weight glTF's fresnel_mix forces on every dielectric;

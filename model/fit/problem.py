@@ -4,9 +4,9 @@ Directions never change during a fit, so everything a model evaluation derives f
 vector, cosines) is computed once per row set, in a :class:`model.base.Pair` whose cached properties every
 evaluation reuses. On large row sets (:data:`COMPILED_ROWS` and more) a model that has a compiled path of its
 own (it overrides ``Model.eval``, as CookTorrance does with model/kernels.py) is evaluated through it
-instead: measured on the 2-core machine at 1.1 million pairs, the RGB GGX kernel took 10-25 ms where the
-numpy path with the cached geometry took 95 ms (plastic) to 240 ms (conductor); below about 100,000 pairs the
-numpy path is as fast and steadier (the kernel's threads wake up per call). Both give the same values.
+instead: at a million pairs the kernel is several times quicker than the numpy path even with the cached
+geometry (bench/fit); below about 100,000 pairs the numpy path is as fast and steadier (the kernel's threads
+wake up per call). Both give the same values.
 
 Lower bounds. Rows flagged ``lower_bound`` (saturated readings: the truth is at least the value) are
 one-sided constraints: their residual is the ordinary one (in the loss's coordinates) clipped at zero from
@@ -18,7 +18,7 @@ models just above the bound and so biases the fit upwards.
 
 Staging. Several starts are screened on a seeded subsample of :data:`SCREEN_SAMPLES` rows; the winner is then
 refined on subsamples growing :data:`STAGE_GROWTH`-fold and polished on all rows, so the solve on all rows
-(0.4-0.7 s per iteration at a million RGB rows, most of it the Jacobian's model evaluations) starts within
+(its iterations the costliest, most of each the Jacobian's model evaluations) starts within
 the subsample's statistical scatter of its optimum. The answer is the optimum on all rows either way; only
 the path to it changes. Solves with many residuals go through model/fit/tall.py, which hands the optimiser
 P + 1 residuals with the same cost.
@@ -97,7 +97,7 @@ def jacobian(
     them together and each column keeps only its channel's rows: a GGX conductor on RGB costs 3
     evaluations per Jacobian instead of 7. Forward differences when f0 = f(x) is given (inside the
     optimiser), central ones otherwise (for the covariance). Columns are filled in a (P, M) buffer and
-    returned transposed: contiguous column writes, 3x faster than strided ones at a million rows. ``out``
+    returned transposed: contiguous column writes, quicker than strided ones at a million rows. ``out``
     is such a buffer from an earlier call with the same groups (its zeros stay where they were), or None.
     """
     base = f0 if f0 is not None else f(x)

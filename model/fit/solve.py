@@ -119,7 +119,7 @@ class FitResult:
     @property
     def p_value(self) -> float:
         """Probability of a chi2 at least this large if the model were true and the errors right."""
-        # chdtrc is chi2's survival function itself; scipy.stats would cost a second and a half of imports.
+        # chdtrc is chi2's survival function itself; scipy.stats would import far more than one function needs.
         from scipy import special  # here: a process that only reads fit results need not load scipy
 
         return float(special.chdtrc(self.dof, self.chi2)) if self.dof > 0 else float("nan")

@@ -1,8 +1,8 @@
 """Least squares over millions of residuals: the same cost, handed to the optimiser as P + 1 residuals.
 
 scipy's trust-region solver takes an SVD of the (M, P) Jacobian, copies it and rescales its columns on
-every iteration: at a million RGB samples (M = 3.3 million) that was 70 % of a fit (1.2-2.4 s per
-iteration on the shared 2-core machine, against 0.6 s for the residuals and the Jacobian themselves).
+every iteration: at a million RGB samples (M = 3.3 million) that was most of a fit, more than the residuals
+and the Jacobian themselves.
 None of it is needed, because for P parameters the cost is unchanged by projecting the residual vector r
 onto a fixed orthonormal basis Q (M, P) and keeping the length of what is left:
 
@@ -13,8 +13,8 @@ gradient (J~^T r~ = J^T r) and stopping tests; only its Gauss-Newton model diffe
 was taken: with Q spanning the Jacobian's columns at the start, J~^T J~ = J^T J there. Q comes from one
 orthonormalisation at the start of the solve, which the staged fit places near the optimum; should the
 Jacobian turn far out of span(Q) on the way (DRIFT_TOL), the solve goes on from where it stopped with a new Q.
-Measured on 1.1 million RGB samples of a table the model cannot match (8 iterations): the last stage took
-5.2 s this way against 9.8-19 s through least_squares on all residuals, to the same cost (10 digits).
+On a million RGB samples of a table the model cannot match, the last stage reaches the same cost (10 digits)
+as least_squares on all residuals, in a fraction of its time (docs/benchmarks.md, the fit).
 
 Robust losses act on each residual, not on projections, so they are folded in first: r_i is replaced by
 sign(r_i) C sqrt(rho(r_i^2 / C^2)) (C = f_scale), whose squares sum to the robust cost scipy minimises,
@@ -57,9 +57,9 @@ def _basis(jt: Array) -> Array:
     """Orthonormal rows (P, M) spanning the rows of jt (P, M), the transposed Jacobian.
 
     CholeskyQR2 (two Gram matrices, two (P, P) x (P, M) products) where jt is well enough conditioned,
-    checked; Householder QR otherwise. Everything stays in the (P, M) layout of the Jacobian's buffer:
-    measured at M = 3.3 million, P = 5 on the shared 2-core machine, (P, P) x (P, M) took 40 ms where the
-    same product as (M, P) x (P, P) took 0.2-1.5 s, and numpy's QR took 0.6-1.4 s.
+    checked; Householder QR otherwise. Everything stays in the (P, M) layout of the Jacobian's buffer: at
+    millions of rows, (P, P) x (P, M) is many times quicker than the same product as (M, P) x (P, P), and
+    than numpy's QR.
     """
     norms = np.sqrt(np.einsum("ij,ij->i", jt, jt))
     qt = jt / np.where(norms > 0, norms, 1.0)[:, None]

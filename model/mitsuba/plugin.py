@@ -32,10 +32,9 @@ symbolic operation, forcefully running the vectorized call in symbolic mode") an
 :func:`evaluated_calls` turns both flags off for a block and restores them. Scalar variants need no
 flags: Mitsuba calls the plugin once per sample with Python floats.
 
-Speed measured here (2 cores; Phong / GGX Cook-Torrance through the plugin): scalar_rgb 24k / 10k
-evals per second (one model.eval per sample, about 40 / 100 us); llvm_ad_rgb 10-11 million evals per
-second for 1e6 pairs, numpy in and out (native roughconductor: 98 million). A 256x256 render at 16 spp
-(direct integrator) took 115-133 ms with the plugin and 55 ms with the native roughconductor.
+Speed: under scalar_rgb every sample is one ``model.eval`` from Python, so the plugin suits tests and small
+renders; under llvm_ad_rgb a lane batch goes through numpy, an order of magnitude short of a native plugin but
+usable for renders (docs/benchmarks.md, the simulator section).
 
 Registration is per variant: a plugin registered under scalar_rgb is unknown under llvm_ad_rgb
 (``mi.register_bsdf`` writes to the active variant's plugin manager; the registration survives

@@ -222,8 +222,8 @@ def warm_start(spec: FitSpec, source: BRDF) -> FitSpec | None:
     """``spec`` started from a Cook-Torrance source's own rho_d, alpha and Fresnel (None for other sources).
 
     The usual candidates of the ladder are Cook-Torrance variants (Schlick Fresnel, other masking); started at
-    their own parameters one start reaches the optimum the random starts find (measured on Lambert + GGX
-    with Schlick Fresnel: the same error to 4 digits in a tenth of the time).
+    their own parameters one start reaches the optimum the random starts find (on Lambert + GGX with Schlick
+    Fresnel: the same error to 4 digits, with one start instead of several).
     """
     if spec.model is not CookTorrance or type(source) is not CookTorrance:
         return None

@@ -1,13 +1,13 @@
 """Choose the fastest Mitsuba 3 variant that loads on this machine, with a fallback and an override.
 
 Order of preference for a kind (``"rgb"``, ``"spectral"``, ...): ``llvm_ad_<kind>`` (vectorised,
-JIT-compiled, about 100x the throughput of scalar from Python), then ``scalar_<kind>``, which needs
+JIT-compiled, far more throughput than scalar from Python), then ``scalar_<kind>``, which needs
 nothing beyond the wheel. The llvm variants need libLLVM >= 16 at run time: without any libLLVM
 ``mi.set_variant`` raises, and with LLVM 15 the variant sets but the process *aborts* in code
 generation at the first BSDF kernel (measured here with libLLVM-15.so.1), which no ``except`` can
 catch. So a probe sets the variant, catches the exception, and checks drjit's libLLVM version.
 
-Probing costs tens of milliseconds per variant, so each answer is cached for the life of the
+Probing loads the variant, so each answer is cached for the life of the
 process (libLLVM is loaded once per process; a failed load is not retried by drjit either).
 
 Precedence in :func:`pick_variant`: the environment variable :data:`ENV_VAR`
@@ -28,7 +28,7 @@ from collections.abc import Iterator
 import drjit as dr
 import mitsuba as mi
 
-from model.threads import drjit_thread_budget
+from model.runtime import drjit_thread_budget
 
 drjit_thread_budget()  # a Dask worker's OMP_NUM_THREADS=1 holds for Dr.Jit's pool too
 
@@ -153,7 +153,7 @@ def use_variant(name: str) -> Iterator[str]:
     _require(name, "requested")
     previous = mi.variant()
     if previous == name:
-        # Switching costs tens of milliseconds (Mitsuba re-imports its Python plugins): skip no-ops.
+        # Switching is not free (Mitsuba re-imports its Python plugins): skip no-ops.
         yield name
         return
     mi.set_variant(name)

@@ -1,7 +1,7 @@
 """Mitsuba's first-use costs paid ahead: what a process that will export a model it does not know yet can build now.
 
-The first tabulation and the first evaluations of a BSDF in a process cost about 30 ms of CPU more than later ones
-(plugins loaded, warps and JIT kernels built); ``gonio analyze``'s export standby pays them during the fit
+The first tabulation and the first evaluations of a BSDF in a process cost more than later ones (plugins
+loaded, warps and JIT kernels built); ``gonio analyze``'s export standby pays them during the fit
 (analysis.exports.write.prepare_exports) instead of after it.
 """
 
@@ -25,7 +25,7 @@ def warm_up(variant: str | None = None) -> None:
     """Build once what Mitsuba builds at the first stock form of a process (plugins, warps, JIT kernels).
 
     For a process that will export a model it does not know yet (``gonio analyze``'s export standby, during the
-    fit): the first tabulation and the first evaluations of a BSDF cost about 30 ms of CPU more than the later ones.
+    fit): the first tabulation and the first evaluations of a BSDF cost more than the later ones.
     """
     name = variant or pick_variant("rgb")
     glossy = CookTorrance(alpha=0.3, fresnel="schlick", f0=0.5, rho_d=0.1)

@@ -1,7 +1,7 @@
-"""Forward kinematics of one pose in Python floats: ``kinematics.forward``'s numbers to the bit, 5x faster.
+"""Forward kinematics of one pose in Python floats: ``kinematics.forward``'s numbers to the bit, without numpy.
 
-The runner turns every read-back into directions once a point; numpy's per-call overhead on 3-vectors made
-that ~70 us. The operations here are numpy's, in numpy's order: products and sums as ``_sample_axes`` and
+The runner turns every read-back into directions once a point, where numpy's per-call overhead on 3-vectors is
+most of the work. The operations here are numpy's, in numpy's order: products and sums as ``_sample_axes`` and
 ``_to_local`` do them (numpy's sum of three starts from +0.0 and adds left to right), degrees and radians
 as the one multiplication both libraries make, and sin, cos, arctan2 and hypot from numpy on a float (its
 SIMD versions may differ from ``math``'s in the last bit: arctan2 and hypot do on an AVX-512 host).

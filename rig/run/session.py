@@ -101,7 +101,7 @@ def _per_point_exposure_s(rig: RigConfig, sweep: SweepConfig) -> float:
     return float(sum(frames) + darks + overhead)
 
 
-#: A plan of more points than this shows its stages on a progress bar (ordering 10^4 points takes seconds).
+#: A plan of more points than this shows its stages on a progress bar (ordering 10^4 points is slow enough to show).
 PROGRESS_POINTS = 10_000
 
 

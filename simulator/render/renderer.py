@@ -7,13 +7,12 @@ into exposures; one render per pose serves every exposure of a bracket, which is
 Variants: ``llvm_ad_rgb`` where libLLVM >= 16 loads, else ``scalar_rgb`` (see
 ``model.mitsuba.variant``; $GONIO_MITSUBA_VARIANT overrides that choice). An explicit ``variant=``
 forces one, over the environment too. The previously active variant is restored after each render (with
-none active before, the render's stays: Mitsuba cannot unset one). Switching costs about 50 ms each way,
-so a sweep should keep one variant active. Mitsuba's active variant is process-global, so renders are
+none active before, the render's stays: Mitsuba cannot unset one). Switching costs many ROI renders each
+way, so a sweep should keep one variant active. Mitsuba's active variant is process-global, so renders are
 serialised by a lock.
 
-Speed, measured here (2 shared cores, mitsuba 3.9.1, steady state with the variant already active): a
-64 x 64 ROI crop renders in 1-2 ms under llvm_ad_rgb and 1-10 ms under scalar_rgb for 1-16 spp, whatever
-the frame size; a full 1024 x 1024 frame in 27-185 ms (llvm) and 0.1-1.3 s (scalar). Render the ROI.
+Speed: an ROI crop renders in a small fraction of a full frame's time under either variant, whatever the frame
+size (bench/simulator). Render the ROI.
 """
 
 from __future__ import annotations
@@ -46,7 +45,7 @@ _render_lock = threading.RLock()
 def resolve_variant(variant: str | None = None, prefer: str | None = None) -> str:
     """The rgb variant to render with: ``variant`` if given (must load), else ``pick_variant(prefer=...)``."""
     if variant is not None:
-        # The probe is cached per process; switching to the variant just to check would cost ~50 ms.
+        # The probe is cached per process; switching to the variant just to check would cost a switch each way.
         reason = unavailable_reason(variant)
         if reason is not None:
             raise VariantUnavailable(f"Mitsuba variant {variant!r} (requested) does not load: {reason}")
@@ -65,7 +64,7 @@ def render_radiance(
     """Render a scene dict to radiance in W/(m^2 sr), shape (H, W, 3) float64 (the crop's size if cropped).
 
     ``evaluated_calls`` turns drjit's symbolic calls and loops off, which a BSDF plugin written in Python
-    with numpy (``model.mitsuba.plugin``) needs under llvm; it costs 2-3x on large llvm frames, so it is
+    with numpy (``model.mitsuba.plugin``) needs under llvm; it slows large llvm frames, so it is
     off unless asked for (``RadianceRenderer`` asks when the material says ``needs_evaluated_calls``).
     """
     name = resolve_variant(variant)
@@ -260,7 +259,7 @@ class RadianceRenderer:
         camera = camera if camera is not None else self.camera
         if camera.roi is not None:
             return camera.roi
-        # The default ROI costs milliseconds at large resolutions: keep it as long as renders are kept.
+        # The default ROI is worked out from the geometry, costly at large resolutions: keep it as long as renders.
         key = (pose_key(pose, self.decimals), light, camera)
         with self._lock:
             box = self._rois.get(key)

@@ -66,7 +66,7 @@ def _roi_mask(
     """Pixels whose centre sees the central ``roi_fraction`` of the sample (and of a spot); window origin.
 
     Only the window around the region's projection is computed (it is convex, so its image lies within
-    the bounding box of its projected corners): a full 2048 x 1536 frame would cost about a second.
+    the bounding box of its projected corners): a full frame at large resolutions would be slow.
     """
     view = camera_view(geometry, pose, camera)
     centre = _vec3("sample_centre_m", pose.sample_centre_m)

@@ -126,7 +126,7 @@ def level_grid() -> list[list[RoiLevel]]:
     return grid
 
 
-#: (target ROI SNR, dark frames, max_total_s); each level meets one in turn (the oracle costs ~25 ms a plan).
+#: (target ROI SNR, dark frames, max_total_s); each level meets one in turn (the oracle is slow: few levels).
 OPTIONS = [(50.0, 0, None), (400.0, 0, None), (1000.0, 2, None), (300.0, 0, 1.5), (5000.0, 1, None)]
 
 

@@ -65,7 +65,7 @@ def gold_report(gold_run: Path) -> tuple[Analysis, Path]:
 
 
 def write_merl_of(model: Model, path: Path) -> Path:
-    """A MERL .binary file tabulating a known model (about a second for 1.46 million bins)."""
+    """A MERL .binary file tabulating a known model (1.46 million bins)."""
     write_merl(MerlTable.from_model(model), path)
     return path
 

@@ -1,19 +1,13 @@
 """What keeps ``gonio analyze`` quick, checked by what it does rather than by timing it: which modules it loads
-(in a fresh interpreter, through sys.modules), that numba is not loaded for a one-off evaluation, and that work
-handed to a forked child comes back (result, exception, or done here when the child dies)."""
+(in a fresh interpreter, through sys.modules), that numba is not loaded for a one-off evaluation, and that a standby
+draws with the collector paused. The forked calls themselves are tested with model/runtime.py."""
 
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
-import threading
 from pathlib import Path
-
-import pytest
-
-from analysis.figure_pool import ForkedCall, Standby, without_gc
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Modules an analysis of an existing table has no use for before it draws or exports: the measuring side of a run
@@ -60,39 +54,9 @@ np.testing.assert_array_equal(m.eval(v[0], v[1]), Model.eval(m, v[0], v[1]))
     assert done.returncode == 0, done.stderr
 
 
-FORKED = """
-import os, sys
-from analysis.figure_pool import ForkedCall, Standby
-parent = os.getpid()
-with ForkedCall(lambda: (os.getpid(), sorted(range(5))), fork=True) as call:
-    assert call.forked
-    pid, value = call.result()
-assert pid != parent and value == [0, 1, 2, 3, 4]
-def fail():
-    raise ValueError("export: no such model")
-with ForkedCall(fail, fork=True) as call:
-    try:
-        call.result()
-    except ValueError as exc:
-        assert "no such model" in str(exc)
-    else:
-        raise AssertionError("the child's exception was not raised here")
-# A child that dies without answering: the call is made here instead.
-with ForkedCall(lambda: os._exit(3) if os.getpid() != parent else "done here", fork=True) as call:
-    assert call.result() == "done here"
-# A standby loads first, then runs a call it is handed later: a closure plain pickle refuses (cloudpickle does not).
-from analysis.figure_pool import Standby
-with Standby(lambda: os.environ.__setitem__("PREPARED_IN", str(os.getpid()))) as standby:
-    assert standby.forked
-    scale = 3
-    standby.run(lambda: (os.environ.get("PREPARED_IN"), os.getpid(), [scale * i for i in range(3)]))
-    prepared_in, ran_in, value = standby.result()
-assert prepared_in == str(ran_in) and ran_in != parent and value == [0, 3, 6] and "PREPARED_IN" not in os.environ
-with Standby(lambda: None) as standby:
-    pass  # closed without work: the standby ends by itself
-# The standby's one call runs with the collector paused (its garbage ends with the process), and so does a draw
-# forked from it; the caller's collector is untouched.
+DRAWS_IN_A_STANDBY = """
 import gc
+from model.runtime import Standby
 from analysis.figure_pool import run_draws
 with Standby(lambda: None) as standby:
     standby.run(lambda: (gc.isenabled(), run_draws([gc.isenabled, gc.isenabled], 2, lambda _: None)))
@@ -102,63 +66,12 @@ print("ok")
 """
 
 
-def test_forked_calls_return_their_result_raise_their_error_and_survive_a_dead_child() -> None:
-    done = subprocess.run([sys.executable, "-c", FORKED], cwd=ROOT, capture_output=True, text=True, timeout=300)
+def test_a_standbys_call_and_the_draws_it_forks_run_with_the_collector_paused() -> None:
+    # The standby's one call runs with the collector paused (its garbage ends with the process), and so does a draw
+    # forked from it; the caller's collector is untouched.
+    done = subprocess.run([sys.executable, "-c", DRAWS_IN_A_STANDBY], cwd=ROOT, capture_output=True, text=True,
+                          timeout=300)  # fmt: skip
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
-
-
-def test_a_forked_call_runs_here_when_forking_is_not_safe() -> None:
-    stop = threading.Event()
-    other = threading.Thread(target=stop.wait)
-    other.start()
-    try:
-        with ForkedCall(os.getpid, fork=True) as call:
-            assert not call.forked
-            assert call.result() == os.getpid()
-    finally:
-        stop.set()
-        other.join()
-    with ForkedCall(os.getpid, fork=False) as call:
-        assert not call.forked and call.result() == os.getpid()
-    with pytest.raises(ZeroDivisionError), ForkedCall(lambda: 1 / 0, fork=False) as call:
-        call.result()
-    stop.clear()
-    other = threading.Thread(target=stop.wait)
-    other.start()
-    try:
-        with Standby(lambda: None) as standby:
-            assert not standby.forked
-            standby.run(os.getpid)
-            assert standby.result() == os.getpid()
-    finally:
-        stop.set()
-        other.join()
-
-
-def test_a_figure_is_drawn_with_the_collector_paused_and_its_cycles_freed_after() -> None:
-    import gc
-    import weakref
-
-    class Node:
-        me: object = None
-
-    seen: list[bool] = []
-    refs: list[weakref.ref[Node]] = []
-
-    def draw() -> int:
-        seen.append(gc.isenabled())
-        node = Node()
-        node.me = node  # a reference cycle, as a figure's artists make: only the collector frees it
-        refs.append(weakref.ref(node))
-        return 7
-
-    assert gc.isenabled()
-    assert without_gc(draw) == 7 and seen == [False] and gc.isenabled() and refs[0]() is None
-    gc.disable()
-    try:
-        assert without_gc(draw) == 7 and not gc.isenabled()  # a caller's paused collector stays paused
-    finally:
-        gc.enable()
 
 
 FIT_AND_PICKLE = """
@@ -184,7 +97,7 @@ print(len(figures.files), sorted(m for m in sys.modules if m.split(".")[0] == "s
 
 
 def test_the_figures_are_drawn_without_scipy(tmp_path: Path) -> None:
-    # gonio analyze forks its figures' process before loading scipy (0.3 CPU s), so that process loads matplotlib
+    # gonio analyze forks its figures' process before loading scipy (a costly import), so that process loads matplotlib
     # while the main one loads scipy: that holds only while reading a fit's results and drawing them need no scipy.
     fitted = subprocess.run([sys.executable, "-c", FIT_AND_PICKLE, str(tmp_path)], cwd=ROOT, capture_output=True,
                             text=True, timeout=600)  # fmt: skip

@@ -33,7 +33,7 @@ MODELS, STARTS, MERL_SAMPLES = "lambert,ggx_conductor", 2, 400
 # With SVGs: their ids and metadata are where a batch could most easily differ from gonio analyze.
 SETTINGS = AnalyzeSettings(models=MODELS, starts=STARTS, samples=MERL_SAMPLES, svg=True)
 ORDER = ("gold", "corrupt", "paint")
-#: Generous: a loaded CI host may be 10x slower than a quiet one; nothing here waits this long when things work.
+#: Generous: a loaded CI host is many times slower than a quiet one; nothing here waits this long when things work.
 TIMEOUT_S = 600.0
 
 
@@ -182,8 +182,8 @@ def _pools() -> dict[str, int]:
 
 def test_each_worker_computes_on_one_thread_with_mallocs_own_settings(cluster: Any, first: Any) -> None:
     # Two workers with two numba and two Dr.Jit threads each would be eight threads taking turns on two cores;
-    # Dask's MALLOC_TRIM_THRESHOLD_ cost each analysis 0.5 s of page faults, its 20 ms event-loop ticks and 10 ms
-    # stack samples 0.24 of the cores (analysis/batch/cluster.py).
+    # Dask's MALLOC_TRIM_THRESHOLD_ made each analysis fault its pages in again, and its frequent event-loop ticks
+    # and stack samples kept the cores busy (analysis/batch/cluster.py).
     pools = cluster.run(_pools)
     assert len(pools) == 2
     want = {"numba": 1, "drjit": 1, "omp": 1, "malloc_trim": None, "config": LOCAL_CONFIG}

@@ -280,7 +280,7 @@ def test_merl_export_reads_back_bin_by_bin(tmp_path: Path) -> None:
     assert np.all(np.isfinite(back.values))
     np.testing.assert_allclose(back.values, expected.values, rtol=1e-15, atol=0.0)
     assert len({float(v) for v in back.values[0, ::9, ::9, ::9].ravel()}) > 100  # not a constant table
-    print(f"export_material with merl=True: {elapsed:.2f} s")  # shown with -s; measured about 2 s here
+    print(f"export_material with merl=True: {elapsed:.2f} s")  # shown with -s
 
 
 def test_refusals_leave_nothing_behind(tmp_path: Path) -> None:

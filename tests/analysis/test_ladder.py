@@ -90,7 +90,7 @@ def test_a_helper_that_dies_leaves_its_candidates_here(tmp_path: Path) -> None:
 
 
 def two_processes(tmp: Path) -> None:
-    from analysis.figure_pool import fork_safe
+    from model.runtime import fork_safe
 
     one = fitted(jobs=1)
     assert fork_safe(), "a fresh interpreter should be safe to fork"

@@ -167,7 +167,7 @@ def test_figures_show_progress_with_an_eta(conductor: Analysis, tmp_path: Path, 
 
 
 def test_figures_drawn_side_by_side_are_the_same_bytes(conductor: Analysis, tmp_path: Path) -> None:
-    from analysis.figure_pool import fork_safe
+    from model.runtime import fork_safe
 
     one = write_figures(conductor, tmp_path / "one", jobs=1)
     two = write_figures(conductor, tmp_path / "two", jobs=2)

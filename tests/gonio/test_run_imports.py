@@ -54,7 +54,7 @@ def test_a_simulated_servo_run_imports_nothing_it_does_not_need_before_its_first
 
 
 # A short simulated run on ROI crops, through the command: its merges run in numpy, so numba never loads (its
-# import and start-up cost about a second before the first reading). An empty numba cache: nothing compiles.
+# import and start-up would come before the first reading). An empty numba cache: nothing compiles.
 RUN = f"""
 import json, sys
 from gonio.cli import main

@@ -213,7 +213,7 @@ for fresnel in ("conductor", "dielectric"):
 @pytest.mark.skipif(platform.machine() != "x86_64", reason="reads x86 assembly")
 def test_the_ggx_loops_vectorise_without_gathers_or_scatters(tmp_path):
     # The speed of the kernel is its vector loop: a per-channel value read from an array inside it kept the
-    # dielectric loop scalar on AVX2 and made every loop gather and scatter on AVX-512 (2.5x slower on a Zen 5).
+    # dielectric loop scalar on AVX2 and made every loop gather and scatter on AVX-512 (several times slower).
     # Compiled afresh (numba's cache keeps no assembly), for the host's ISA.
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
     done = subprocess.run([sys.executable, "-c", VECTORISED], capture_output=True, text=True, timeout=600, env=env,

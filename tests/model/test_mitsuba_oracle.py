@@ -72,7 +72,7 @@ def variant(request: pytest.FixtureRequest) -> Iterator[str]:
     name: str = request.param
     require_variant(name)
     # Hold the variant for the whole test: the helpers' own use_variant then costs nothing, where
-    # switching back and forth per call would take tens of milliseconds each time.
+    # switching back and forth per call would reload the variant's plugins each time.
     with use_variant(name):
         yield name
 

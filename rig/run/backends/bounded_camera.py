@@ -11,8 +11,8 @@ The deadline is wall time, as it must be for a real device; ``slack_s`` is gener
 default) so that a loaded host never turns into a camera fault. A thread left blocked in a dead driver is
 a daemon: it cannot keep the process from exiting, and after a timeout the camera is not called again.
 
-One worker thread serves all calls of a camera, in order (a thread started per call cost 1-4 ms a call on
-a loaded host, ~6 calls a point); it ends when the camera is closed or dropped.
+One worker thread serves all calls of a camera, in order (starting a thread per call was slow on a loaded host,
+with several calls a point); it ends when the camera is closed or dropped.
 """
 
 from __future__ import annotations
@@ -71,8 +71,8 @@ class BoundedCamera:
         if self._dead is not None:
             raise CameraTimeout(f"{self._camera.identity}: {what} refused: {self._dead}")
         box: dict[str, Any] = {}
-        # A plain lock, held until the worker releases it: half an Event's cost a call (no condition, no
-        # waiter list), ~4 us of the controller's thread each of the ~5 calls a point.
+        # A plain lock, held until the worker releases it: cheaper than an Event (no condition, no waiter list),
+        # several times a point on the controller's thread.
         done = threading.Lock()
         done.acquire()
 
@@ -124,8 +124,8 @@ class BoundedCamera:
         """Set the exposure (s) and take ``frames`` frames (dark ones with ``dark``): what was applied, the frames.
 
         The same camera calls as ``set_exposure`` then ``capture`` (or ``capture_dark``) each time, in one
-        hand-off to the worker instead of 1 + ``frames``: each wake-up of the waiting thread cost the controller
-        ~30 us in a sweep. Each of those calls keeps its own deadline, as if made one at a time.
+        hand-off to the worker instead of 1 + ``frames``: each wake-up of the waiting thread costs the controller's
+        thread. Each of those calls keeps its own deadline, as if made one at a time.
         """
         take = self._camera.capture_dark if dark else self._camera.capture  # type: ignore[attr-defined]
         what = "capture_dark" if dark else "capture"
@@ -152,7 +152,7 @@ class BoundedCamera:
 
         The same camera calls in the same order, stopping where the sequence of calls would have stopped
         (a wrong answer to set_exposure, a capture that is not a Frame, an exception), and the same errors.
-        A point's darks at two exposures took two hand-offs (~36 us of the controller each in the sweep).
+        A point's darks at two exposures took two hand-offs, each a wake-up of the controller's thread.
         Each of those calls keeps its own deadline, as if made one at a time.
         """
         take = self._camera.capture_dark if dark else self._camera.capture  # type: ignore[attr-defined]

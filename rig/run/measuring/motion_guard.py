@@ -36,14 +36,10 @@ class MotionGuard:
         names = paths.names if paths is not None else []
         self._names = names
         self._allowed = {_key(float(np.asarray(getattr(j, n))) for n in names) for j in allowed}
-        self._link: MotionLink | None = None
-        self._link_homes = False
 
     def _homing(self, link: MotionLink) -> HomingLink | None:
-        """``link`` if it homes (GRBL), else None; asked once a link: a runtime Protocol check costs ~12 us a move."""
-        if link is not self._link:
-            self._link, self._link_homes = link, isinstance(link, HomingLink)
-        return cast(HomingLink, link) if self._link_homes else None
+        """``link`` if it homes (GRBL), else None."""
+        return cast(HomingLink, link) if isinstance(link, HomingLink) else None
 
     def legs(self, link: MotionLink, target: Mapping[str, float]) -> list[dict[str, float]]:
         """The poses to send, in order, to reach ``target`` safely from where the link reads the joints now."""

@@ -129,7 +129,8 @@ _as_list = channel_list
 def _f(x: float) -> float:
     """``x`` rounded to 9 decimals as ``np.round`` does it (times 1e9, to the nearest even, over 1e9), -0.0 as 0.0.
 
-    In Python floats: numpy's call costs ~3 us, twelve times a point. The same bits (rig/run tests compare).
+    In Python floats: numpy's per-call cost, twelve times a point, for one float. The same bits (rig/run tests
+    compare).
     """
     y = float(x) * 1e9
     if not math.isfinite(y):  # round() has no integer for it; numpy's answer is inf or nan
@@ -251,8 +252,8 @@ class Runner:
                    file=sys.stderr, dynamic_ncols=True,
                    bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")  # fmt: skip
         # Objects alive now (the camera's renderer, compiled kernels, the plan) live as long as the run: a full
-        # collection walking them cost ~85 ms of the controller's thread (0.4 ms a point over 200 points) and
-        # frees none of them. Frozen, collections walk only what the run itself makes. Not if someone froze first.
+        # collection walking them costs the controller's thread and frees none of them. Frozen, collections walk
+        # only what the run itself makes. Not if someone froze first.
         freeze = gc.get_freeze_count() == 0
         if freeze:
             gc.freeze()

@@ -1,8 +1,8 @@
 """Load the merge before the first point, as a step of its own; its compiled passes where they are needed.
 
 The HDR merge runs ROI-sized images in numpy and larger ones in compiled passes that numba caches on disk
-(``cache=True``): the first run on a machine compiles them (tens of seconds on a loaded 2-core host), later
-runs load them (about a second, numba's own start-up included). Which a run needs is known only from its
+(``cache=True``): the first run on a machine compiles them, later runs only load them (numba's own start-up
+included; bench/first_reading times both). Which a run needs is known only from its
 frames, so the compiled passes load at the first large merge (a run on ROI crops never loads numba), and
 :func:`notify_before_compiling` arms the notice shown before they compile. The warm-up step merges a tiny
 synthetic bracket in each configuration a run uses (without and with dark frames, both weightings), so the

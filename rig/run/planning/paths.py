@@ -67,7 +67,7 @@ def _wrapped(d: FloatArray) -> FloatArray:
 
 
 # One move at a time (the runtime guard, the planner's splits) the same arithmetic runs on Python floats:
-# numpy on one-element arrays costs a microsecond per operation, and a move's check is hundreds of them.
+# numpy's per-call cost on one-element arrays is most of the work, and a move's check is hundreds of them.
 # Every operation is the one numpy does, in the same order (x * x for numpy's x**2; Python's % and
 # numpy's remainder agree), so the result is the same float; tests/rig/run/planning/test_plan_paths.py pins it.
 Trapezoid = tuple[float, float, float, float, float, float]

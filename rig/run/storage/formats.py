@@ -204,7 +204,7 @@ class NotExactJson(Exception):
 def exact_json(value: Any) -> Any:
     """A fresh copy of ``value`` made only of exact JSON types: what ``json.loads`` reads back from its text.
 
-    The journal keeps this copy instead of parsing the line it wrote (~55 us a record in the sweep). Only exact
+    The journal keeps this copy instead of parsing the line it wrote (a visible share of a record). Only exact
     types qualify: an IntEnum, a float or str subclass or a numpy scalar would read back as another type, so
     it raises ``NotExactJson`` there and the caller takes the general path (``jsonable``, then a re-parse).
     """

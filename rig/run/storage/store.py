@@ -147,13 +147,13 @@ def _dumps(value: Any, **kw: Any) -> str:
     return json.dumps(value, allow_nan=False, ensure_ascii=True, **kw)
 
 
-#: The journal line's encoder, made once (json.dumps with keywords builds one a call, ~1 us of its ~19 a record):
-#: the encoder json.dumps builds from the same keywords, so the same text.
+#: The journal line's encoder, made once (json.dumps with keywords builds one a call): the encoder json.dumps
+#: builds from the same keywords, so the same text.
 _encode_line = json.JSONEncoder(allow_nan=False, ensure_ascii=True, separators=(",", ":")).encode
 
 
 def _copy_json(value: Any) -> Any:
-    """A deep copy of plain JSON values (dicts, lists and immutable scalars): ``copy.deepcopy`` at half the cost."""
+    """A deep copy of plain JSON values (dicts, lists and immutable scalars): cheaper than ``copy.deepcopy``."""
     if isinstance(value, dict):
         return {k: _copy_json(v) for k, v in value.items()}
     if isinstance(value, list):
@@ -349,8 +349,8 @@ class RunStore:
     def records_to_read(self) -> Sequence[Mapping[str, Any]]:
         """Journal records in order, the store's own (not copied: read them, never change them).
 
-        For a reader of every record, such as the table at the end of a run: copying 200 records cost it
-        ~10 ms. A read-only view re-reads the journal each time, as ``records`` does.
+        For a reader of every record, such as the table at the end of a run, which copying them all would slow.
+        A read-only view re-reads the journal each time, as ``records`` does.
         """
         if not self._writable:
             self._load_journal(repair=False)

@@ -3,7 +3,7 @@
 Mitsuba is the oracle throughout: its reader parses the tensor file, its ``measured`` plugin evaluates the table
 (exactly at the tabulated nodes, within a stated tolerance between them, for isotropic and anisotropic models of
 each symmetry, views in the x-z plane included), and its renders carry the model's albedo. Low resolutions keep
-each test to about a second.
+each test short.
 """
 
 from __future__ import annotations

@@ -2,9 +2,9 @@
 
 The controller's per-point work was made cheaper (scalar kinematics and rounding, a faster planner search and
 one-kind merge variance, ROI shortcuts, one camera hand-off per exposure and one for a point's darks, a faster
-journal walk, the journal's records kept rather than parsed again, the bracket check's settings and frames
-without dataclasses.replace, the reading's lists without atleast_1d). Each shortcut has its own
-bit-for-bit test; this one runs the same sweep twice, once as it is and once with every shortcut replaced
+journal walk, the journal's records kept rather than parsed again; the bracket check's settings and frames
+without dataclasses.replace and the reading's lists without atleast_1d were undone in issue 29). Each shortcut
+has its own bit-for-bit test; this one runs the same sweep twice, once as it is and once with every shortcut replaced
 by the implementation it replaced (kept in the tests), and compares what the two runs wrote.
 """
 
