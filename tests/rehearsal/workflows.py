@@ -176,10 +176,11 @@ class Workflows:
     link: str
 
     @pytest.fixture(scope="class")
-    def rehearsed(self, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rehearsed]:
+    @classmethod
+    def rehearsed(cls, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rehearsed]:
         """The link's shipped rig file rehearsed (see the module docstring), once for the class's tests."""
-        tmp = tmp_path_factory.mktemp(self.link)
-        shipped = small_rig(self.link, tmp)
+        tmp = tmp_path_factory.mktemp(cls.link)
+        shipped = small_rig(cls.link, tmp)
         with rehearsal_of(shipped, tmp / "frames") as reh:
             yield reh, reh.rig_file(shipped, tmp / "rig.toml"), tmp
 
