@@ -29,7 +29,7 @@ def add_rig_option(parser: argparse.ArgumentParser) -> None:
 
 def load_rig_option(path: str | None) -> RigConfig:
     """The rig an --rig option names: its file's, or the built-in simulated rig for none."""
-    # Imported here, not at the top: the configuration's schema (pydantic) costs most of a second, and
+    # Imported here, not at the top: the configuration's schema (pydantic) is slow to import, and
     # `gonio --help` or `gonio analyze` need none of it.
     from rig.run.config.files import load_rig, rig_config
     from rig.run.config.schema import RigFile

@@ -9,7 +9,7 @@ In jit variants (llvm) one vectorised call evaluates all pairs; in scalar varian
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import drjit as dr
@@ -42,6 +42,17 @@ def require_variant(name: str) -> None:
     if name.startswith("scalar") or (name.startswith("llvm") and llvm_required()):
         pytest.fail(f"{name} must load here but does not: {reason}")
     pytest.skip(f"{name} unavailable: {reason}")
+
+
+def held_variant(name: str) -> Iterator[str]:
+    """The body of a test module's ``variant`` fixture: ``name`` checked by require_variant and held for the test.
+
+    Held for the whole test, the helpers' own use_variant finds it set and costs nothing; switched back and
+    forth per call instead, every call would pay for a change of variant.
+    """
+    require_variant(name)
+    with use_variant(name):
+        yield name
 
 
 def f32(a: npt.ArrayLike) -> np.ndarray:

@@ -3,7 +3,9 @@
 The original searched the shortest exposure with a fixed 100-step bisection in log time and evaluated every
 step with the numpy ``roi_snr``; the planner now stops the bisection where it stalls, starts it from a
 closed-form bracket and evaluates a mean level in Python floats. Every plan of a grid of levels, targets,
-cameras and options must come out identical, to the bit.
+cameras and options must come out identical, to the bit. The oracle keeps the original's arithmetic, not its
+code: the merge variance with the frame kinds as an array axis, roi_snr as one path for every level, the
+search as a bracket of (failing, passing) log times.
 """
 
 import itertools
@@ -34,20 +36,24 @@ from acquisition.noise import SensorNoise
 def reference_merged_variance(
     rates: FloatArray, frames: Frames, noise: SensorNoise, gain: float, dark_frames: int, limit_dn: float
 ) -> FloatArray:
-    """The merge variance before its one-kind path: every kind's terms added to zeros, the square per pixel."""
-    rates = np.asarray(rates, dtype=np.float64)
-    rg = rates * gain
-    num = np.zeros_like(rates)
-    total_t = np.zeros_like(rates)
-    dr = _dark_rate(noise, gain)
-    for t, n in frames.items():
-        used = (rg + dr) * t <= limit_dn
-        var = n * noise.variance_dn2(rg * t, t, gain)
-        if dark_frames:
-            var = var + n * n * noise.variance_dn2(0.0, t, gain) / dark_frames
-        num += np.where(used, var, 0.0)
-        total_t += np.where(used, n * t, 0.0)
-    out = np.full_like(rates, np.inf)
+    """The merge variance as it was before its one-kind path, with the frame kinds as an array axis.
+
+    Var X = sum_k [unclipped_k] n_k var_k / (gain sum_k [unclipped_k] n_k t_k)^2 per rate: each sum starts
+    from zero and adds the kinds in order (the original loop's arithmetic), the square per pixel.
+    """
+    rg = np.asarray(rates, dtype=np.float64) * gain
+    kinds = len(frames)
+    t = np.array(list(frames), dtype=np.float64).reshape(kinds, 1)  # a row per kind against the rates
+    n = np.array(list(frames.values())).reshape(kinds, 1)
+    unclipped = (rg + _dark_rate(noise, gain)) * t <= limit_dn
+    frame_dn2 = np.array([noise.variance_dn2(rg * tk, tk, gain) for tk in frames]).reshape(kinds, *rg.shape)
+    var = n * frame_dn2
+    if dark_frames:  # one dark mean is subtracted from each of a kind's n frames: n^2 times its variance
+        dark_dn2 = np.array([noise.variance_dn2(0.0, tk, gain) for tk in frames]).reshape(kinds, 1)
+        var = var + n * n * dark_dn2 / dark_frames
+    num = np.add.reduce(np.where(unclipped, var, 0.0), axis=0, initial=0.0)
+    total_t = np.add.reduce(np.where(unclipped, n * t, 0.0), axis=0, initial=0.0)
+    out = np.full_like(rg, np.inf)
     np.divide(num, (gain * total_t) ** 2, out=out, where=total_t > 0)
     return out
 
@@ -55,40 +61,38 @@ def reference_merged_variance(
 def oracle_roi_snr(
     level: RoiLevel, noise: SensorNoise, exposures_s: Sequence[float], gain: float = 1.0, dark_frames: int = 0
 ) -> float:
-    """The original roi_snr: every level through the numpy merge variance."""
-    frames = _frames(exposures_s)
+    """The original roi_snr: every level through the numpy merge variance, the mean level too.
+
+    mean / sqrt(sum_i w_i Var_i / n_pixels) over the level's pixel distribution; without one, over the mean
+    level alone (weight 1) and the frames in which the peak does not clip. 0 for a zero mean, and where a
+    weighted rate clips in every frame.
+    """
     sat = noise.saturation_dn(gain)
+    frames = _frames(exposures_s)
     if level.mean_dn_per_s == 0:
         return 0.0
-    if level.rates_dn_per_s:
-        r = np.asarray(level.rates_dn_per_s, dtype=float)
-        w = np.asarray(level.weights, dtype=float)
-    else:
-        dr = _dark_rate(noise, gain)
-        frames = {t: n for t, n in frames.items() if (level.peak_dn_per_s * gain + dr) * t <= sat}
-        r = np.array([level.mean_dn_per_s])
-        w = np.array([1.0])
-    var = reference_merged_variance(r, frames, noise, gain, dark_frames, sat)
-    if not np.all(np.isfinite(var[w > 0])):
+    if not level.rates_dn_per_s:
+        peak_dn_per_s = level.peak_dn_per_s * gain + _dark_rate(noise, gain)
+        frames = {t: n for t, n in frames.items() if peak_dn_per_s * t <= sat}
+    rates = level.rates_dn_per_s or (level.mean_dn_per_s,)
+    weights = np.asarray(level.weights if level.rates_dn_per_s else (1.0,), dtype=float)
+    var = reference_merged_variance(np.asarray(rates, dtype=float), frames, noise, gain, dark_frames, sat)
+    if not np.all(np.isfinite(var[weights > 0])):
         return 0.0
-    var_mean = float(np.sum(w * var)) / level.n_pixels
-    return level.mean_dn_per_s / math.sqrt(var_mean)
+    return level.mean_dn_per_s / math.sqrt(float(np.sum(weights * var)) / level.n_pixels)
 
 
 def oracle_shortest(ok: Callable[[float], bool], cam: CameraTiming, t_hi: float, guess: float | None = None) -> float:
     """The original search: 100 halvings in log time, whatever the estimate."""
-    lo = cam.ceil(cam.min_exposure_s) or t_hi
-    if ok(lo):
-        return lo
-    a, b = math.log(lo), math.log(t_hi)
+    shortest = cam.ceil(cam.min_exposure_s) or t_hi
+    if ok(shortest):
+        return shortest
+    fails, passes = math.log(shortest), math.log(t_hi)  # ok is false at e^fails and true at e^passes
     for _ in range(100):
-        m = 0.5 * (a + b)
-        if ok(math.exp(m)):
-            b = m
-        else:
-            a = m
-    t = cam.ceil(math.exp(b))
-    return t if t is not None and t <= t_hi and ok(t) else t_hi
+        mid = 0.5 * (fails + passes)
+        fails, passes = (fails, mid) if ok(math.exp(mid)) else (mid, passes)
+    found = cam.ceil(math.exp(passes))
+    return found if found is not None and found <= t_hi and ok(found) else t_hi
 
 
 def oracle_min_snr(

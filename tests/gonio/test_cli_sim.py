@@ -30,16 +30,17 @@ def _first_line(proc: subprocess.Popen[str], timeout_s: float) -> str:
 
 
 @contextmanager
-def gonio_sim(*args: str) -> Iterator[tuple[subprocess.Popen[str], str]]:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "gonio.cli", "sim", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
-    try:
-        yield proc, _first_line(proc, timeout_s=300.0)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        proc.communicate(timeout=120)
+def gonio_sim(*args: str, stdin: bool = False) -> Iterator[tuple[subprocess.Popen[str], str]]:
+    """``gonio sim ARGS`` running (its standard input a pipe with ``stdin``), and the device path it prints first."""
+    with subprocess.Popen(
+        [sys.executable, "-m", "gonio.cli", "sim", *args], stdin=subprocess.PIPE if stdin else None,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    ) as proc:  # fmt: skip
+        try:
+            yield proc, _first_line(proc, timeout_s=300.0)
+        finally:
+            if proc.poll() is None:
+                proc.kill()  # then leaving the Popen closes its pipes and waits for it
 
 
 def _interrupt(proc: subprocess.Popen[str]) -> int:
@@ -129,12 +130,7 @@ def test_sim_rig_serves_servos_and_writes_frames_of_the_pose_they_hold(tmp_path)
     from rig.instrument.links.dynamixel import DynamixelLink
     from rig.run.config.files import default_axes
 
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "gonio.cli", "sim", "rig", "--frames", str(tmp_path), "--speed", "20"],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
-    try:
-        port = _first_line(proc, timeout_s=300.0)
+    with gonio_sim("rig", "--frames", str(tmp_path), "--speed", "20", stdin=True) as (proc, port):
         axes = default_axes(RigGeometry())
         with DynamixelLink.open(port, axes, clock=SystemClock(), latency_timer_ms=60.0) as link:
             target = require(inverse(RigGeometry(), 30.0, 0.0, 20.0, 180.0))
@@ -155,21 +151,12 @@ def test_sim_rig_serves_servos_and_writes_frames_of_the_pose_they_hold(tmp_path)
         assert "expected 'capture SECONDS'" in _first_line(proc, timeout_s=120.0)
         proc.stdin.close()
         assert proc.wait(timeout=120) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait(timeout=120)
 
 
 @pytest.mark.mitsuba
 def test_ctrl_c_stops_sim_rig_after_it_has_rendered(tmp_path) -> None:
     """Ctrl-C ends the rehearsal after a frame too (once the renderer had run, SIGINT never reached it)."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "gonio.cli", "sim", "rig", "--frames", str(tmp_path), "--speed", "20"],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
-    try:
-        _first_line(proc, timeout_s=300.0)
+    with gonio_sim("rig", "--frames", str(tmp_path), "--speed", "20", stdin=True) as (proc, _port):
         assert proc.stdin is not None
         proc.stdin.write("capture 0.01\n")
         proc.stdin.flush()
@@ -179,10 +166,6 @@ def test_ctrl_c_stops_sim_rig_after_it_has_rendered(tmp_path) -> None:
         with contextlib.suppress(subprocess.TimeoutExpired):
             proc.wait(timeout=120)
         assert proc.poll() == 130, f"gonio sim rig did not stop on Ctrl-C (status {proc.poll()})"
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait(timeout=120)
 
 
 @pytest.mark.mitsuba
@@ -197,12 +180,8 @@ def test_sim_rig_on_grbl_homes_and_writes_frames_of_the_pose_the_steppers_hold(t
 
     rig_file = Path(__file__).resolve().parents[2] / "examples" / "rig_simulated_grbl.toml"
     rig = load_rig(rig_file)
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "gonio.cli", "sim", "rig", "--rig", str(rig_file), "--frames", str(tmp_path),
-         "--speed", "20"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
-    try:
-        port = _first_line(proc, timeout_s=300.0)
+    args = ("rig", "--rig", str(rig_file), "--frames", str(tmp_path), "--speed", "20")
+    with gonio_sim(*args, stdin=True) as (proc, port):
         with GrblLink(port, rig.axes, clock=SystemClock(), require_home=True, reply_timeout_s=5.0) as link:
             target = require(inverse(rig.geometry, 30.0, 0.0, 20.0, 180.0))
             link.move_to({k: float(v) for k, v in target.as_dict().items()})  # homes first
@@ -215,10 +194,6 @@ def test_sim_rig_on_grbl_homes_and_writes_frames_of_the_pose_the_steppers_hold(t
         assert float(frame.data.mean()) > max(np.atleast_1d(frame.black_level)) + 10  # lit: the sample in view
         proc.stdin.close()
         assert proc.wait(timeout=120) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait(timeout=120)
 
 
 @pytest.mark.slow

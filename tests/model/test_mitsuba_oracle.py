@@ -34,16 +34,15 @@ import pytest
 from model import fresnel, microfacet
 from model.cook_torrance import CookTorrance
 from model.lambert import Lambert
-from model.mitsuba.variant import use_variant
 from tests.mitsuba_helpers import (
     ORACLE_VARIANTS,
     bsdf_eval_cos,
     f32,
     fresnel_conductor,
     fresnel_dielectric,
+    held_variant,
     microfacet_d,
     microfacet_g1,
-    require_variant,
     rgb,
 )
 
@@ -69,12 +68,7 @@ def d_cut(kind: str, cos_h: np.ndarray, alpha: float | np.ndarray) -> tuple[np.n
 
 @pytest.fixture(params=ORACLE_VARIANTS)
 def variant(request: pytest.FixtureRequest) -> Iterator[str]:
-    name: str = request.param
-    require_variant(name)
-    # Hold the variant for the whole test: the helpers' own use_variant then costs nothing, where
-    # switching back and forth per call would reload the variant's plugins each time.
-    with use_variant(name):
-        yield name
+    yield from held_variant(request.param)
 
 
 def n_sets(variant: str) -> tuple[int, int]:

@@ -11,28 +11,14 @@ import numpy as np
 import pytest
 
 import model as model_pkg
-from model import (
-    AshikhminShirley,
-    BlinnPhong,
-    CookTorrance,
-    KajiyaKay,
-    Lafortune,
-    LafortuneLobe,
-    Lambert,
-    MerlTable,
-    MetalnessMix,
-    MetalRoughness,
-    Model,
-    OrenNayar,
-    Phong,
-    Ward,
-)
+from model import BlinnPhong, CookTorrance, KajiyaKay, Lambert, MerlTable, MetalnessMix, Model, Phong, Ward
 from model.checks import random_hemisphere
 from model.merl import SHAPE
 from model.serialize import MODELS, ModelFormatError, from_json_dict, is_serialisable, to_json_dict
+from tests.model import model_instances as shared
 
 NON_DEFAULT: list[Model] = [
-    AshikhminShirley(rho_d=(0.5, 0.3, 0.2), rho_s=(0.05, 0.1, 0.2), n_u=50.0, n_v=400.0),
+    shared.ASHIKHMIN_SHIRLEY,
     BlinnPhong(rho_d=0.2, rho_s=(0.5, 0.5, 0.4), n=80.0, normalization="approx"),
     CookTorrance(alpha=0.3, eta=(0.18, 0.42, 1.37), k=(3.42, 2.35, 1.77)),
     CookTorrance(
@@ -44,18 +30,15 @@ NON_DEFAULT: list[Model] = [
         rho_d=(0.5, 0.4, 0.2),
         form="cook_torrance_1982",
     ),
-    CookTorrance(alpha=0.25, fresnel="schlick", f0=(0.9, 0.6, 0.3)),
-    KajiyaKay(k_d=(0.3, 0.2, 0.1), k_s=(0.5, 0.4, 0.3), p=40.0, phi_t=0.4),
-    Lafortune(
-        rho_d=(0.2, 0.1, 0.05),
-        lobes=(LafortuneLobe(c_x=(-1.0, -0.9, -0.8), c_y=-1.0, c_z=0.9, n=20.0), LafortuneLobe(0.5, 0.5, 0.6, 5.0)),
-    ),
-    Lambert(rho_d=(0.8, 0.5, 0.2)),
-    MetalRoughness(base_color=(0.9, 0.6, 0.3), metallic=1.0, roughness=0.4),
+    shared.CT_SCHLICK,
+    shared.KAJIYA_KAY,
+    shared.LAFORTUNE,
+    shared.LAMBERT,
+    shared.METAL,
     MetalnessMix(base_color=(0.8, 0.5, 0.2), roughness=0.5, metalness=0.3, f0_dielectric=0.05),
-    OrenNayar(rho_d=(0.7, 0.5, 0.3), sigma=0.4),
-    Phong(rho_d=(0.3, 0.2, 0.1), rho_s=(0.4, 0.5, 0.6), n=30.0),
-    Ward(rho_d=(0.2, 0.3, 0.1), rho_s=(0.3, 0.2, 0.2), alpha_x=0.1, alpha_y=0.3, variant="balanced"),
+    shared.OREN_NAYAR,
+    shared.PHONG,
+    shared.WARD,
     Lambert(rho_d=(1.0 / 3.0,)),  # a one-element channel list stays a tuple, and 1/3 survives exactly
 ]
 
@@ -100,7 +83,7 @@ def test_non_default_values_round_trip_and_evaluate_identically(m: Model) -> Non
 
 
 def test_json_values_are_plain() -> None:
-    d = to_json_dict(NON_DEFAULT[6])  # Lafortune
+    d = to_json_dict(shared.LAFORTUNE)
     assert d["params"]["rho_d"] == [0.2, 0.1, 0.05]
     assert d["params"]["lobes"][1] == {"c_x": 0.5, "c_y": 0.5, "c_z": 0.6, "n": 5.0}
     assert json.loads(json.dumps(d)) == d

@@ -10,7 +10,6 @@ misalignments found by ``gonio calibrate geometry`` through the folder camera.
 from __future__ import annotations
 
 import sys
-from collections.abc import Iterator
 
 import pytest
 
@@ -18,10 +17,6 @@ from tests.rehearsal import workflows as w
 from tests.rehearsal.harness import Operator
 
 pytestmark = [pytest.mark.slow, pytest.mark.mitsuba]
-
-@pytest.fixture(scope="module")
-def rehearsed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[w.Rehearsed]:
-    yield from w.rehearsed_shipped("dynamixel", tmp_path_factory.mktemp("dynamixel"))
 
 
 class TestDynamixel(w.Workflows):

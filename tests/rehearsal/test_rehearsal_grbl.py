@@ -8,18 +8,11 @@ adaptive sweep stopped and resumed. The geometry calibration of ``examples/rig_m
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import pytest
 
 from tests.rehearsal import workflows as w
 
 pytestmark = [pytest.mark.slow, pytest.mark.mitsuba]
-
-
-@pytest.fixture(scope="module")
-def rehearsed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[w.Rehearsed]:
-    yield from w.rehearsed_shipped("grbl", tmp_path_factory.mktemp("grbl"))
 
 
 class TestGrbl(w.Workflows):

@@ -15,6 +15,8 @@ import json
 from collections.abc import Iterator
 from pathlib import Path
 
+import pytest
+
 from tests.rehearsal.harness import Operator, Rehearsal
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -168,17 +170,19 @@ Rehearsed = tuple[Rehearsal, Path, Path]
 """A running rehearsal of a link's shipped rig file, the controller's copy of that file, and a folder to work in."""
 
 
-def rehearsed_shipped(link: str, tmp: Path) -> Iterator[Rehearsed]:
-    """The body of a link's module fixture: its shipped rig file rehearsed (see the module docstring)."""
-    shipped = small_rig(link, tmp)
-    with rehearsal_of(shipped, tmp / "frames") as reh:
-        yield reh, reh.rig_file(shipped, tmp / "rig.toml"), tmp
-
-
 class Workflows:
-    """The workflows both links run; a link's test file subclasses it as ``Test...`` with its ``rehearsed`` fixture."""
+    """The workflows both links run; a link's test file subclasses it as ``Test...`` naming its ``link``."""
 
     link: str
+
+    @pytest.fixture(scope="class")
+    @classmethod
+    def rehearsed(cls, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rehearsed]:
+        """The link's shipped rig file rehearsed (see the module docstring), once for the class's tests."""
+        tmp = tmp_path_factory.mktemp(cls.link)
+        shipped = small_rig(cls.link, tmp)
+        with rehearsal_of(shipped, tmp / "frames") as reh:
+            yield reh, reh.rig_file(shipped, tmp / "rig.toml"), tmp
 
     def test_the_geometry_calibration_of_the_misaligned_rig(self, tmp_path: Path) -> None:
         # examples/rig_misaligned.toml served on this link with its [simulation] hidden, calibrated through the

@@ -54,6 +54,24 @@ def noisy(
     return Samples(wi, wo, f + rng.normal(size=f.shape) * se, se), f
 
 
+def noisy_in_plane(model: Model, n: int, seed: int) -> tuple[Samples, Array]:
+    """``noisy`` samples whose directions all lie in the x-z plane: incidence 0 to 80 deg, outgoing -80 to 80."""
+    rng = np.random.default_rng(seed)
+    ti, to = rng.uniform(0, 80, n), rng.uniform(-80, 80, n)
+    wi = np.stack([np.sin(np.radians(ti)), 0 * ti, np.cos(np.radians(ti))], axis=-1)
+    wo = np.stack([np.sin(np.radians(to)), 0 * to, np.cos(np.radians(to))], axis=-1)
+    return noisy(model, wi=wi, wo=wo, seed=seed)
+
+
+def saturated_plastic() -> tuple[Samples, Array]:
+    """600 noisy samples of PLASTIC whose brightest tenth is clipped at the 90th percentile and marked as lower
+    bounds, and the mask of those."""
+    samples, f = noisy(PLASTIC, n=600, seed=6)
+    cap = np.quantile(f.max(axis=1), 0.9)
+    lower = f.max(axis=1) > cap
+    return Samples(samples.wi, samples.wo, np.minimum(samples.value, cap), samples.std_error, lower), lower
+
+
 def truth(spec: FitSpec, model: Model) -> Array:
     return np.concatenate([np.broadcast_to(np.atleast_1d(getattr(model, p.name)), (3 if p.per_channel else 1,))
                            for p in spec.params])  # fmt: skip
@@ -116,11 +134,7 @@ def test_too_few_points_is_an_error_naming_the_counts() -> None:
 
 
 def test_points_in_one_plane_warn_for_isotropic_and_fail_for_anisotropic_models() -> None:
-    rng = np.random.default_rng(5)
-    ti, to = rng.uniform(0, 80, 300), rng.uniform(-80, 80, 300)
-    wi = np.stack([np.sin(np.radians(ti)), 0 * ti, np.cos(np.radians(ti))], axis=-1)
-    wo = np.stack([np.sin(np.radians(to)), 0 * to, np.cos(np.radians(to))], axis=-1)
-    samples, _ = noisy(PLASTIC, wi=wi, wo=wo, seed=5)
+    samples, _ = noisy_in_plane(PLASTIC, n=300, seed=5)
     with pytest.warns(FitWarning, match="one plane"):
         res = fit(lambert_ggx(), samples)
     assert any("one plane" in w for w in res.warnings)
@@ -139,10 +153,7 @@ def test_zero_or_negative_std_error_is_an_error_naming_the_sample(bad: float) ->
 
 @pytest.mark.filterwarnings("ignore::model.fit.solve.FitWarning")
 def test_saturated_samples_are_excluded_with_a_warning_on_request() -> None:
-    samples, f = noisy(PLASTIC, n=600, seed=6)
-    cap = np.quantile(f.max(axis=1), 0.9)
-    lower = f.max(axis=1) > cap
-    sat = Samples(samples.wi, samples.wo, np.minimum(samples.value, cap), samples.std_error, lower)
+    sat, lower = saturated_plastic()
     with pytest.warns(FitWarning, match=f"{lower.sum()} saturated"):
         res = fit(lambert_ggx(), sat, lower_bounds="exclude")
     assert res.n_samples == 600 - lower.sum() and res.n_excluded == lower.sum() and res.n_bounds == 0
@@ -154,10 +165,7 @@ def test_saturated_samples_are_excluded_with_a_warning_on_request() -> None:
 
 @pytest.mark.filterwarnings("ignore::model.fit.solve.FitWarning")
 def test_saturated_samples_are_lower_bounds_by_default() -> None:
-    samples, f = noisy(PLASTIC, n=600, seed=6)
-    cap = np.quantile(f.max(axis=1), 0.9)
-    lower = f.max(axis=1) > cap
-    sat = Samples(samples.wi, samples.wo, np.minimum(samples.value, cap), samples.std_error, lower)
+    sat, lower = saturated_plastic()
     res = fit(lambert_ggx(), sat)
     assert res.n_samples == 600 - lower.sum() and res.n_bounds == lower.sum() and res.n_excluded == 0
     # chi2 and dof count the ordinary samples only.

@@ -4,7 +4,7 @@ import pytest
 from model import CookTorrance, Lambert
 from model.fit.select import default_ladder, select
 from model.fit.solve import LAMBERT, FitError, lambert_ggx
-from tests.model.fit.test_fit import PLASTIC, noisy
+from tests.model.fit.test_fit import PLASTIC, noisy, noisy_in_plane
 
 
 def test_lambertian_data_choose_lambert_and_say_why() -> None:
@@ -40,11 +40,7 @@ def test_when_no_candidate_reaches_the_noise_the_reason_says_so() -> None:
 
 
 def test_a_candidate_the_data_cannot_support_is_listed_with_its_error() -> None:
-    rng = np.random.default_rng(4)
-    ti, to = rng.uniform(0, 80, 200), rng.uniform(-80, 80, 200)
-    wi = np.stack([np.sin(np.radians(ti)), 0 * ti, np.cos(np.radians(ti))], axis=-1)
-    wo = np.stack([np.sin(np.radians(to)), 0 * to, np.cos(np.radians(to))], axis=-1)
-    samples, _ = noisy(PLASTIC, wi=wi, wo=wo, seed=4)
+    samples, _ = noisy_in_plane(PLASTIC, n=200, seed=4)
     sel = select(samples)
     assert sel.chosen_name == "lambert+ggx_dielectric"
     assert "not fitted" in sel.table() and "could not be fitted" in sel.reason

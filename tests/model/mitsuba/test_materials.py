@@ -26,27 +26,13 @@ import numpy as np
 import pytest
 
 import model as model_pkg
-from model import (
-    AshikhminShirley,
-    BlinnPhong,
-    CookTorrance,
-    KajiyaKay,
-    Lafortune,
-    LafortuneLobe,
-    Lambert,
-    MerlTable,
-    MetalnessMix,
-    MetalRoughness,
-    OrenNayar,
-    Phong,
-    Ward,
-    microfacet,
-)
+from model import BlinnPhong, CookTorrance, Lambert, MerlTable, MetalnessMix, MetalRoughness, Phong, microfacet
 from model.merl import SHAPE
 from model.mitsuba import plugin as mitsuba_bsdf
 from model.mitsuba.materials import BECKMANN_REL_TOL, NATIVE_REL_TOL, to_mitsuba
 from model.mitsuba.variant import use_variant
-from tests.mitsuba_helpers import ORACLE_VARIANTS, bsdf_eval_cos, f32, require_variant
+from tests.mitsuba_helpers import ORACLE_VARIANTS, bsdf_eval_cos, f32, held_variant, require_variant
+from tests.model import model_instances as shared
 
 pytestmark = pytest.mark.mitsuba
 
@@ -74,7 +60,7 @@ def merl_table() -> MerlTable:
 
 #: name -> (model, expected plugin). Native exactly where model.mitsuba.materials documents it.
 CASES: dict[str, tuple[Any, str]] = {
-    "lambert": (Lambert(rho_d=(0.8, 0.5, 0.2)), "diffuse"),
+    "lambert": (shared.LAMBERT, "diffuse"),
     "ct_ggx_conductor": (CookTorrance(alpha=0.25, **GOLD), "roughconductor"),
     "ct_beckmann_conductor": (CookTorrance(alpha=0.3, distribution="beckmann", **COPPER), "roughconductor"),
     "ct_ggx_dielectric": (CookTorrance(alpha=0.2, fresnel="dielectric", eta=(1.45, 1.5, 1.55)), "roughconductor"),
@@ -87,30 +73,20 @@ CASES: dict[str, tuple[Any, str]] = {
     "ct_smith_correlated": (CookTorrance(alpha=0.25, masking="smith_correlated", **GOLD), "gonio_model"),
     "ct_smith_schlick": (CookTorrance(alpha=0.25, masking="smith_schlick", **GOLD), "gonio_model"),
     "ct_v_groove": (CookTorrance(alpha=0.25, distribution="beckmann", masking="v_groove", **GOLD), "gonio_model"),
-    "ct_schlick_fresnel": (CookTorrance(alpha=0.25, fresnel="schlick", f0=(0.9, 0.6, 0.3)), "gonio_model"),
+    "ct_schlick_fresnel": (shared.CT_SCHLICK, "gonio_model"),
     "ct_blinn_phong": (CookTorrance(alpha=0.3, distribution="blinn_phong", **GOLD), "gonio_model"),
     "ct_index_matched": (CookTorrance(alpha=0.25, fresnel="dielectric", eta=(1.01, 1.5, 1.5)), "gonio_model"),
     "ct_rho_d_one": (CookTorrance(alpha=0.25, rho_d=(1.0, 0.5, 0.2), **GOLD), "gonio_model"),
-    "phong": (Phong(rho_d=(0.3, 0.2, 0.1), rho_s=(0.4, 0.5, 0.6), n=30.0), "gonio_model"),
+    "phong": (shared.PHONG, "gonio_model"),
     "blinn_phong": (BlinnPhong(rho_d=(0.3, 0.2, 0.1), rho_s=(0.5, 0.5, 0.4), n=80.0), "gonio_model"),
-    "ward_anisotropic": (
-        Ward(rho_d=(0.2, 0.3, 0.1), rho_s=(0.3, 0.2, 0.2), alpha_x=0.1, alpha_y=0.3, variant="balanced"),
-        "gonio_model",
-    ),
-    "ashikhmin_shirley": (AshikhminShirley(rho_d=(0.5, 0.3, 0.2), rho_s=(0.05, 0.1, 0.2), n_u=50.0, n_v=400.0),
-                          "gonio_model"),
-    "oren_nayar": (OrenNayar(rho_d=(0.7, 0.5, 0.3), sigma=0.4), "gonio_model"),
-    "lafortune": (
-        Lafortune(
-            rho_d=(0.2, 0.1, 0.05),
-            lobes=(LafortuneLobe(c_x=(-1.0, -0.9, -0.8), c_y=-1.0, c_z=0.9, n=20.0), LafortuneLobe(0.5, 0.5, 0.6, 5.0)),
-        ),
-        "gonio_model",
-    ),
-    "kajiya_kay": (KajiyaKay(k_d=(0.3, 0.2, 0.1), k_s=(0.5, 0.4, 0.3), p=40.0, phi_t=0.4), "gonio_model"),
+    "ward_anisotropic": (shared.WARD, "gonio_model"),
+    "ashikhmin_shirley": (shared.ASHIKHMIN_SHIRLEY, "gonio_model"),
+    "oren_nayar": (shared.OREN_NAYAR, "gonio_model"),
+    "lafortune": (shared.LAFORTUNE, "gonio_model"),
+    "kajiya_kay": (shared.KAJIYA_KAY, "gonio_model"),
     "metal_roughness_dielectric": (MetalRoughness(base_color=(0.8, 0.5, 0.2), metallic=0.0, roughness=0.5),
                                    "gonio_model"),
-    "metal_roughness_metal": (MetalRoughness(base_color=(0.9, 0.6, 0.3), metallic=1.0, roughness=0.4), "gonio_model"),
+    "metal_roughness_metal": (shared.METAL, "gonio_model"),
     "metalness_mix": (MetalnessMix(base_color=(0.8, 0.5, 0.2), roughness=0.5, metalness=0.3), "gonio_model"),
     "merl_table": (merl_table(), "gonio_model"),
 }
@@ -118,10 +94,7 @@ CASES: dict[str, tuple[Any, str]] = {
 
 @pytest.fixture(params=ORACLE_VARIANTS)
 def variant(request: pytest.FixtureRequest) -> Iterator[str]:
-    name: str = request.param
-    require_variant(name)
-    with use_variant(name):
-        yield name
+    yield from held_variant(request.param)
 
 
 def sph(theta_deg: float, phi_deg: float) -> np.ndarray:

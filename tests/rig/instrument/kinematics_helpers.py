@@ -8,9 +8,7 @@ import numpy as np
 from hypothesis import strategies as st
 
 from model.geometry import degrees_to_vector
-from rig.instrument.kinematics import (
-    forward,
-)
+from rig.instrument.kinematics import Joints, Reason, Unreachable, forward, inverse
 
 #: A beam so narrow that the spot never limits reach below the default 85 deg maximum zenith.
 PENCIL = 0.01
@@ -51,3 +49,17 @@ def assert_round_trip(geometry, joints, ti, pi, to, po, tol=1e-9):
         assert abs(wrap(d.phi_i - pi)) * math.sin(math.radians(ti)) < tol
     if math.sin(math.radians(to)) > 1e-6:
         assert abs(wrap(d.phi_o - po)) * math.sin(math.radians(to)) < tol
+
+
+def joints_if_separated(geometry, ti, pi, to, po):
+    """``inverse``'s joints for the directions, checked to be Joints; None where the directions are closer than
+    the rig's minimum separation (checked to be refused for it) or within 1e-6 deg of it (rounding decides)."""
+    sol = inverse(geometry, ti, pi, to, po)
+    sep = separation(ti, pi, to, po)
+    if abs(sep - geometry.min_separation_deg) < 1e-6:
+        return None
+    if sep < geometry.min_separation_deg:
+        assert isinstance(sol, Unreachable) and sol.reason is Reason.MIN_SEPARATION
+        return None
+    assert isinstance(sol, Joints), sol
+    return sol

@@ -96,25 +96,24 @@ def test_status_packets_match_the_manual(packet: str, dxl_id: int, error: int, p
     assert build_status(dxl_id, error, h(params)) == h(packet)
 
 
-def test_fast_sync_read_reply_crc_runs_over_the_whole_packet() -> None:
-    """The manual's Fast Sync Read reply (IDs 3, 7, 4): each segment's CRC covers everything before it."""
-    manual = h("FF FF FD 00 FE 19 00 55 00 03 A6 00 00 00 84 08 00 07 1F 08 00 00 16 CA 00 04 FF 03 00 00 D1 9E")
-    packet = fast_status_header(3 * (4 + 4))
-    for dxl_id, data in ((3, "A6 00 00 00"), (7, "1F 08 00 00"), (4, "FF 03 00 00")):
+@pytest.mark.parametrize(
+    ("manual", "segments"),
+    [
+        ("FF FF FD 00 FE 19 00 55 00 03 A6 00 00 00 84 08 00 07 1F 08 00 00 16 CA 00 04 FF 03 00 00 D1 9E",
+         ((3, "A6 00 00 00"), (7, "1F 08 00 00"), (4, "FF 03 00 00"))),
+        ("FF FF FD 00 FE 14 00 55 00 03 A6 00 00 00 67 A4 00 07 A5 01 24 74 00 04 1F D9 C1",
+         ((3, "A6 00 00 00"), (7, "A5 01"), (4, "1F"))),
+    ],
+    ids=["fast_sync_read", "fast_bulk_read"],
+)  # fmt: skip
+def test_fast_read_replies_match_the_manual(manual: str, segments: tuple[tuple[int, str], ...]) -> None:
+    """The manual's Fast Sync and Bulk Read replies (IDs 3, 7, 4): each segment's CRC covers everything before it."""
+    packet = fast_status_header(sum(1 + 1 + len(h(data)) + 2 for _, data in segments))  # ERR ID DATA CRC_L CRC_H
+    for dxl_id, data in segments:
         packet += bytes([0, dxl_id]) + h(data)
         crc = crc16(packet)
         packet += bytes([crc & 0xFF, crc >> 8])
-    assert packet == manual
-
-
-def test_fast_bulk_read_reply_matches_the_manual() -> None:
-    manual = h("FF FF FD 00 FE 14 00 55 00 03 A6 00 00 00 67 A4 00 07 A5 01 24 74 00 04 1F D9 C1")
-    packet = fast_status_header((4 + 4) + (2 + 4) + (1 + 4))
-    for dxl_id, data in ((3, "A6 00 00 00"), (7, "A5 01"), (4, "1F")):
-        packet += bytes([0, dxl_id]) + h(data)
-        crc = crc16(packet)
-        packet += bytes([crc & 0xFF, crc >> 8])
-    assert packet == manual
+    assert packet == h(manual)
 
 
 def test_the_manuals_fast_bulk_read_instruction_example_has_a_wrong_crc() -> None:

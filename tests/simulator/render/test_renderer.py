@@ -1,9 +1,8 @@
 """simulator.render.renderer: rendered radiance against the point-source law, crops, the cache, variants.
 
-The references are independent of Mitsuba's scene code: radiance from the point-source law evaluated per
-pixel on geometry computed here in numpy, Mitsuba's own BSDF ``eval`` in the kinematics' local frame for
-the anisotropic check, and Mitsuba's documented texture conventions (rectangle uv = (x + 1, y + 1) / 2,
-checkerboard colour0 where exactly one of frac(u), frac(v) exceeds 1/2) for the sample's axes.
+The radiance reference is independent of Mitsuba's scene code: the point-source law evaluated per pixel on
+geometry computed here in numpy. A crop must hold the very pixels of the full frame; the cache's hits, misses
+and byte bound, and the variant a render runs under, are checked on the renderer itself.
 """
 
 from __future__ import annotations

@@ -8,14 +8,14 @@ from typing import Any
 import pytest
 
 import rig.run.measuring.runner as runner_module
-from acquisition.frame import Camera, ExposureSettings, Frame
+from acquisition.frame import Camera, Frame
 from rig.run.measuring.progress import Eta, format_eta
 from rig.run.measuring.runner import Runner
 from rig.run.measuring.warm_up import kernels_cached, notify_before_compiling, warm_up
 from rig.run.session import capture_settings, make_plan, manifest, options_for
 from rig.run.storage.store import RunStore
 from simulator.from_config import rig_from
-from tests.run_helpers import in_plane_sweep, open_link, sim_rig
+from tests.run_helpers import FlakyCamera, in_plane_sweep, open_link, sim_rig
 
 
 class Wall:
@@ -48,26 +48,16 @@ def test_the_estimate_uses_the_first_point_until_a_second_is_done_then_only_the_
     assert format_eta(3725.4) == "ETA 1:02:05"
 
 
-class SlowFirstCamera:
+class SlowFirstCamera(FlakyCamera):
     """Passes captures through, costing 31 s of wall time for the first (a first render) and 1 s after."""
 
     def __init__(self, camera: Camera, wall: Wall) -> None:
-        self._camera, self._wall, self.captures = camera, wall, 0
-
-    @property
-    def identity(self) -> str:
-        return self._camera.identity
-
-    def set_exposure(self, exposure_s: float, gain: float | None = None) -> ExposureSettings:
-        return self._camera.set_exposure(exposure_s, gain)
+        super().__init__(camera, {})
+        self._wall = wall
 
     def capture(self) -> Frame:
-        self.captures += 1
-        self._wall.advance(31.0 if self.captures == 1 else 1.0)
-        return self._camera.capture()
-
-    def close(self) -> None:
-        self._camera.close()
+        self._wall.advance(1.0 if self.captures else 31.0)
+        return super().capture()
 
 
 def test_the_runner_warms_up_before_the_first_point_and_its_eta_excludes_both(
