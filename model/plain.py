@@ -18,11 +18,13 @@ from typing import Any
 
 import numpy as np
 
+from model.errors import GonioError
+
 #: A rule: a leaf (or a key) in, what the copy holds in its place out; raises to refuse it.
 Rule = Callable[[Any], Any]
 
 
-class Refused(ValueError):
+class Refused(GonioError, ValueError):
     """A rule refused a value; ``path`` gathers where it sits (innermost first) as the walk unwinds."""
 
     def __init__(self, what: str) -> None:

@@ -27,6 +27,7 @@ from pydantic import BaseModel, ValidationError
 
 import model
 from model.base import Model
+from model.errors import InputError
 from model.plain import json_copy
 from rig.instrument.alignment import Alignment
 from rig.instrument.axis import Axis
@@ -46,7 +47,7 @@ FloatArray = npt.NDArray[np.float64]
 M = TypeVar("M", bound=BaseModel)
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError, ValueError):
     """A rig or sweep file is unreadable or invalid; the message names the file, key, value and expectation."""
 
 

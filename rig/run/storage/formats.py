@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from model.errors import GonioError
 from model.plain import json_walk
 
 Float32Array = npt.NDArray[np.float32]
@@ -156,7 +157,7 @@ def parse_journal(data: bytes) -> tuple[list[dict[str, Any]], int, int]:
     return records, good, torn
 
 
-class NotExactJson(Exception):
+class NotExactJson(GonioError):
     """Raised by ``exact_json`` at anything but exact plain JSON types (a subclass, a numpy value, NaN)."""
 
 

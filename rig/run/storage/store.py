@@ -35,6 +35,7 @@ from typing import Any, Self
 from numpy.typing import ArrayLike
 
 from acquisition.files.atomic import atomic_path
+from model.errors import InputError
 from model.plain import json_copy, jsonable
 from model.version import gonio_version
 from rig.run.storage.formats import Float32Array, NotExactJson, csv_text, exact_json, parse_journal, read_exr, write_exr
@@ -46,7 +47,7 @@ _RESERVED = ("format", "created_utc", "gonio_version")
 _NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]{0,127}")
 
 
-class RunStoreError(RuntimeError):
+class RunStoreError(InputError, RuntimeError):
     """A run directory or one of its files is missing, locked, corrupt, or the call would damage it."""
 
 
