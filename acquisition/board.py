@@ -21,10 +21,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from model.errors import InputError
+
 FloatArray = npt.NDArray[np.float64]
 
 
-class BoardError(ValueError):
+class BoardError(InputError, ValueError):
     """The board's specification is impossible, or its image cannot be used."""
 
 

@@ -51,13 +51,14 @@ import numpy as np
 import numpy.typing as npt
 
 from acquisition.roi import RoiReading
+from model.errors import InputError
 from model.radiometry import solid_angle_disk
 
 Footprint = Literal["roi_in_spot", "spot_in_roi"]
 FloatArray = npt.NDArray[np.float64]
 
 
-class CalibrationError(ValueError):
+class CalibrationError(InputError, ValueError):
     """A calibration input is out of range, mismatched, or at a geometry where the conversion is unreliable."""
 
 

@@ -30,12 +30,13 @@ import numpy.typing as npt
 from acquisition.files.atomic import atomic_path
 from acquisition.frame import Frame, FrameError
 from acquisition.hdr.merge import HdrImage
+from model.errors import InputError
 
 FloatArray = npt.NDArray[np.float64]
 FORMAT = "gonio-flat-field/1"
 
 
-class FlatFieldError(ValueError):
+class FlatFieldError(InputError, ValueError):
     """A flat-field series or file is unusable, or a map does not cover the frame it should correct."""
 
 

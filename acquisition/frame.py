@@ -8,12 +8,14 @@ from typing import Literal, Protocol, runtime_checkable
 import numpy as np
 import numpy.typing as npt
 
+from model.errors import GonioError
+
 FrameKind = Literal["raw", "linear", "8bit"]
 """``raw``: a CFA mosaic (H, W) in sensor counts; ``linear``: demosaiced or mono linear counts (H, W[, C]);
 ``8bit``: a gamma-encoded display image (H, W[, C]) from a camera without RAW output."""
 
 
-class FrameError(ValueError):
+class FrameError(GonioError, ValueError):
     """A frame is unusable: missing or contradictory metadata, wrong shape, or unreadable data."""
 
 

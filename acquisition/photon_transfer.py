@@ -44,6 +44,7 @@ import numpy.typing as npt
 
 from acquisition.frame import Frame
 from acquisition.noise import SensorNoise
+from model.errors import CameraFault
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -54,7 +55,7 @@ LINEARITY_RANGE = (0.05, 0.95)
 QUANTISATION_DN2 = 1.0 / 12.0
 
 
-class PhotonTransferError(ValueError):
+class PhotonTransferError(CameraFault, ValueError):
     """The series cannot be fitted: too few points, no saturation, frames that do not pair up."""
 
 

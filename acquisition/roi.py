@@ -35,6 +35,8 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
+from model.errors import GonioError
+
 Box = tuple[int, int, int, int]
 """A pixel box ``(x0, y0, x1, y1)``: columns x0..x1-1 and rows y0..y1-1 (half-open, like slices)."""
 
@@ -48,7 +50,7 @@ IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
 
 
-class RoiError(ValueError):
+class RoiError(GonioError, ValueError):
     """An ROI does not fit its image, selects no usable pixel, or meets data it cannot reduce honestly."""
 
 

@@ -41,6 +41,7 @@ from model.fit.samples import FitError
 from model.fit.select import default_ladder
 from model.fit.solve import LOSSES
 from model.fit.spec import FitSpec
+from model.plain import json_walk
 from model.serialize import to_json_dict
 from rig.run.storage.store import MANIFEST
 
@@ -113,16 +114,20 @@ def model_json(model: Model) -> dict[str, Any]:
     return to_json_dict(model)
 
 
-def _plain(value: Any) -> Any:
-    """JSON-ready: tuples and arrays as lists, numpy scalars as floats, inf and NaN as None (JSON has neither)."""
+def _null_for_nan(value: Any) -> Any:
+    """``_plain``'s rule where its walk stops: containers walked on, other numbers as floats, inf and NaN as None."""
     if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
+        return _plain(dict(value))
     if isinstance(value, list | tuple | np.ndarray):
-        return [_plain(v) for v in value]
+        return _plain(list(value))
     if isinstance(value, bool | str | int) or value is None:
         return value
     f = float(value)
     return f if math.isfinite(f) else None
+
+
+#: JSON-ready: tuples and arrays as lists, numpy scalars as floats, inf and NaN as None (JSON has neither), keys str.
+_plain = json_walk(_null_for_nan, str)
 
 
 def fit_json(a: Analysis) -> dict[str, Any]:

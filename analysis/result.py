@@ -18,6 +18,7 @@ import numpy.typing as npt
 
 from analysis.parameters import parameter_status, undetermined_text
 from model.base import BRDF
+from model.errors import InputError
 from model.fit.samples import Samples
 from model.fit.select import Candidate, Selection
 from model.fit.solve import FitResult
@@ -53,7 +54,7 @@ def noise_words(r: FitResult) -> str:
     return f"above the noise (p = {p:.2g})"
 
 
-class AnalysisError(ValueError):
+class AnalysisError(InputError, ValueError):
     """The source cannot be analysed (missing, not a run, unreadable, too little data); names the path."""
 
 

@@ -1,10 +1,11 @@
 """How the command line reports a failure: one line that names what went wrong, and an exit code that says whose.
 
-Only gonio's own input errors (a rig, sweep or table file, a run directory, an argument) are exit 2: they are
-the user's to fix. A failing disk or a missing permission (OSError) is exit 74 with the path and the system's
-words for it; a hardware fault 3, a camera fault 4; anything else is a bug in gonio (exit 70), reported with
-where it was raised (``gonio --debug`` prints the whole traceback). Output cut short by a closed pipe (``gonio
-plan ... | head``) ends quietly with 141, as a program killed by SIGPIPE does.
+An error of gonio's own says whose it is by its kind (model/errors.py): input errors (a rig, sweep or table file, a
+run directory, an argument) are exit 2, the user's to fix; a hardware fault 3, a camera fault 4; a stopped run the
+code of its cause. A failing disk or a missing permission (OSError) is exit 74 with the path and the system's words
+for it; anything else is a bug in gonio (exit 70), reported with where it was raised (``gonio --debug`` prints the
+whole traceback). Output cut short by a closed pipe (``gonio plan ... | head``) ends quietly with 141, as a
+program killed by SIGPIPE does.
 """
 
 from __future__ import annotations
@@ -22,11 +23,14 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from model.errors import EXIT_INTERRUPTED, CameraFault, GonioError, HardwareFault, InputError
 from model.spelling import did_you_mean
 
-EXIT_OK, EXIT_BAD_INPUT, EXIT_HARDWARE, EXIT_CAMERA, EXIT_INTERRUPTED = 0, 2, 3, 4, 130
+EXIT_OK = 0
+# Whose an error is: the code its kind carries (model/errors.py), bad input, a hardware fault, a camera fault.
+EXIT_BAD_INPUT, EXIT_HARDWARE, EXIT_CAMERA = InputError.exit_code, HardwareFault.exit_code, CameraFault.exit_code
 # A prompt answered no; a bug (sysexits' EX_SOFTWARE); a file or device failed (EX_IOERR); stdout's reader left.
-EXIT_DECLINED, EXIT_BUG, EXIT_OS_ERROR, EXIT_PIPE = 1, 70, 74, 141
+EXIT_DECLINED, EXIT_BUG, EXIT_OS_ERROR, EXIT_PIPE = 1, GonioError.exit_code, 74, 141
 
 EXIT_CODES_HELP = (
     "Exit codes: 0 done; 1 declined at a confirmation prompt (nothing changed); 2 bad input (a rig, sweep or "
@@ -36,39 +40,14 @@ EXIT_CODES_HELP = (
 )
 
 
-class CliError(ValueError):
+class CliError(InputError, ValueError):
     """An input error the command line itself finds (an unknown axis, an analysis it would overwrite): exit 2."""
 
 
-def _input_errors() -> tuple[type[BaseException], ...]:
-    # Imported here, not at the top: analysis pulls scipy, and `gonio --help` should stay quick.
-    from acquisition.calibration import CalibrationError
-    from acquisition.cameras import BackendNotInstalledError
-    from acquisition.flatfield import FlatFieldError
-    from analysis.result import AnalysisError
-    from model._params import ParameterError
-    from model.fit.samples import FitError
-    from model.merl import MerlFormatError
-    from model.serialize import ModelFormatError
-    from rig.instrument.axis import AxisLimitError
-    from rig.instrument.geometry import GeometryError
-    from rig.instrument.kinematics_types import UnreachableError
-    from rig.run.adaptive.state import AdaptiveStateError
-    from rig.run.backends.reference import OperatorAbsent
-    from rig.run.config.files import ConfigError
-    from rig.run.registry import BackendError
-    from rig.run.storage.store import RunStoreError
-
-    return (CliError, ConfigError, RunStoreError, AnalysisError, AxisLimitError, GeometryError, UnreachableError,
-            ParameterError, ModelFormatError, MerlFormatError, FitError, FlatFieldError, CalibrationError,
-            BackendError, BackendNotInstalledError, AdaptiveStateError, OperatorAbsent)  # fmt: skip
-
-
-def _camera_errors() -> tuple[type[BaseException], ...]:
-    from acquisition.cameras import CameraError
-    from rig.run.backends.bounded_camera import CameraError as BoundedCameraError
-
-    return (CameraError, BoundedCameraError)
+#: How the line of an error of each kind begins (a stopped run's, of no kind, says what stopped it itself).
+_HEADINGS: tuple[tuple[type[GonioError], str], ...] = (
+    (InputError, "error: "), (HardwareFault, "hardware fault: "), (CameraFault, "camera fault: "),
+)
 
 
 def os_error_message(exc: OSError) -> str:
@@ -115,22 +94,15 @@ def quiet_broken_pipe() -> int:
 
 def report(exc: BaseException, debug: bool) -> int:
     """Print one line (or, with ``debug``, the traceback) for an exception a command raised; return the exit code."""
-    from rig.instrument.links.base import LinkError
-
     if debug:
         traceback.print_exception(exc, file=sys.stderr)
     if isinstance(exc, KeyboardInterrupt):
         print("gonio: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    if isinstance(exc, LinkError):
-        print(f"gonio: hardware fault: {exc}", file=sys.stderr)
-        return EXIT_HARDWARE
-    if isinstance(exc, _camera_errors()):
-        print(f"gonio: camera fault: {exc}", file=sys.stderr)
-        return EXIT_CAMERA
-    if isinstance(exc, _input_errors()):
-        print(f"gonio: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    if isinstance(exc, GonioError) and exc.exit_code != EXIT_BUG:
+        heading = next((words for kind, words in _HEADINGS if isinstance(exc, kind)), "")
+        print(f"gonio: {heading}{exc}", file=sys.stderr)
+        return exc.exit_code
     if isinstance(exc, OSError):
         print(f"gonio: operating-system error: {os_error_message(exc)}", file=sys.stderr)
         return EXIT_OS_ERROR

@@ -20,7 +20,10 @@ from typing import Any
 
 # Re-exported: the exit codes have always been importable from here (see docs/architecture.md).
 from gonio.cli_errors import EXIT_BAD_INPUT as EXIT_BAD_INPUT
-from gonio.cli_errors import EXIT_CAMERA, EXIT_HARDWARE, EXIT_INTERRUPTED, EXIT_OK
+from gonio.cli_errors import EXIT_CAMERA as EXIT_CAMERA
+from gonio.cli_errors import EXIT_HARDWARE as EXIT_HARDWARE
+from gonio.cli_errors import EXIT_INTERRUPTED as EXIT_INTERRUPTED
+from gonio.cli_errors import EXIT_OK
 from gonio.cli_options import add_command, add_quiet_option, add_rig_option, load_rig_option
 
 
@@ -43,7 +46,7 @@ def _stopped(exc: Exception) -> int:
 
     if isinstance(exc, RunStopped):
         print(f"gonio: {exc}", file=sys.stderr)
-        return {"interrupted": EXIT_INTERRUPTED, "hardware": EXIT_HARDWARE, "camera": EXIT_CAMERA}[exc.cause]
+        return exc.exit_code  # its cause's: interrupted, a hardware fault, a camera fault
     raise exc
 
 

@@ -8,11 +8,13 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
+from model.errors import InputError
+
 Channel = float | tuple[float, ...]
 """A model parameter: one float for all channels, or one float per channel (e.g. RGB)."""
 
 
-class ParameterError(ValueError):
+class ParameterError(InputError, ValueError):
     """A model parameter is outside its documented range or has the wrong shape."""
 
 

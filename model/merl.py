@@ -17,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from model.base import BRDF, Array, Pair
+from model.errors import InputError
 from model.geometry import from_half_diff, to_half_diff
 
 N_THETA_H, N_THETA_D, N_PHI_D = 90, 90, 180
@@ -25,7 +26,7 @@ SCALE = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
 FILE_BYTES = 12 + 3 * 8 * N_THETA_H * N_THETA_D * N_PHI_D
 
 
-class MerlFormatError(ValueError):
+class MerlFormatError(InputError, ValueError):
     """A file is not a valid MERL .binary table."""
 
 

@@ -28,6 +28,7 @@ from model.ashikhmin_shirley import AshikhminShirley
 from model.base import BRDF, Model
 from model.blinn_phong import BlinnPhong
 from model.cook_torrance import CookTorrance
+from model.errors import InputError
 from model.kajiya_kay import KajiyaKay
 from model.lafortune import Lafortune, LafortuneLobe
 from model.lambert import Lambert
@@ -55,7 +56,7 @@ _MERL_WHY = (
 )
 
 
-class ModelFormatError(ValueError):
+class ModelFormatError(InputError, ValueError):
     """A model's JSON form is not valid: unknown class or field, wrong type, or a value out of range."""
 
 

@@ -27,6 +27,7 @@ import numpy.typing as npt
 from acquisition.board import ChArUcoBoard
 from acquisition.noise import SensorNoise
 from model.base import Model
+from model.errors import GonioError
 from model.lambert import Lambert
 from model.mitsuba.materials import MitsubaMaterial, to_mitsuba
 from rig.instrument.alignment import Alignment, aligned_pose
@@ -47,7 +48,7 @@ _ACTIVE_LOCK = threading.Lock()
 _active: list[SimulatedRig] = []
 
 
-class SimulatedRigError(RuntimeError):
+class SimulatedRigError(GonioError, RuntimeError):
     """The simulated rig cannot start (one is already running in this process, or the spec is unusable)."""
 
 

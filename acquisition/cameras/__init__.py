@@ -18,6 +18,8 @@ import time
 from types import ModuleType
 from typing import Protocol, runtime_checkable
 
+from model.errors import CameraFault, InputError
+
 
 @runtime_checkable
 class ClockLike(Protocol):
@@ -45,7 +47,7 @@ class RealTimeClock:
             time.sleep(seconds)
 
 
-class CameraError(RuntimeError):
+class CameraError(CameraFault, RuntimeError):
     """A camera could not be opened, configured or read."""
 
 
@@ -53,7 +55,7 @@ class ExposureUnconfirmedError(CameraError):
     """A strict camera was asked for an exposure its driver cannot set or report back."""
 
 
-class BackendNotInstalledError(ImportError):
+class BackendNotInstalledError(InputError, ImportError):
     """An optional camera backend's library is missing; the message names the pip extra that installs it."""
 
 

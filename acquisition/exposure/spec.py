@@ -14,11 +14,13 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from model.errors import GonioError
+
 Steps = Sequence[float] | Callable[[float], float]
 """The camera's available exposures in seconds: a list, or a function mapping a request to what it applies."""
 
 
-class ExposureError(ValueError):
+class ExposureError(GonioError, ValueError):
     """No exposure satisfies a hard constraint: the ROI saturates at the shortest exposure, or no step fits."""
 
 

@@ -21,8 +21,6 @@ JSON in ``model_json``: exact, but it renders only in a Python process that impo
 
 from __future__ import annotations
 
-import copy
-import json
 from typing import Any
 from xml.sax.saxutils import quoteattr
 
@@ -32,6 +30,7 @@ from model.mitsuba import plugin as gonio_plugin
 from model.mitsuba.materials import to_mitsuba
 from model.mitsuba.projection import NativeProjection, native_projection
 from model.mitsuba.tabulated import Tabulated, measured_bsdf
+from model.plain import jsonable
 
 #: Mitsuba scene-format version written into standalone XML.
 XML_VERSION = "3.0.0"
@@ -55,12 +54,6 @@ def merl_refusal(model: BRDF) -> None:
         )
 
 
-def _plain(d: dict[str, Any]) -> dict[str, Any]:
-    """A deep copy that is guaranteed to be plain JSON data (raises on anything else)."""
-    out: dict[str, Any] = json.loads(json.dumps(d, allow_nan=False))
-    return out
-
-
 def mitsuba_dict(model: BRDF, *, plugin: bool = False, projection: NativeProjection | None = None) -> dict[str, Any]:
     """JSON-serialisable Mitsuba scene-dict entry of ``model``: stock plugins, or with ``plugin`` gonio's exact one.
 
@@ -70,10 +63,10 @@ def mitsuba_dict(model: BRDF, *, plugin: bool = False, projection: NativeProject
     merl_refusal(model)
     mat = to_mitsuba(model)
     if mat.native:
-        return _plain(copy.deepcopy(mat.bsdf))
+        return jsonable(mat.bsdf, "bsdf")  # a copy of plain JSON values only
     if plugin:
-        return _plain(gonio_plugin.json_plugin_dict(model))
-    return _plain((projection or native_projection(model)).bsdf)
+        return jsonable(gonio_plugin.json_plugin_dict(model), "bsdf")
+    return jsonable((projection or native_projection(model)).bsdf, "bsdf")
 
 
 def _comment(text: str) -> str:

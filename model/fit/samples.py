@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from model.errors import InputError
 from model.geometry import degrees_to_vector, from_half_diff
 from model.merl import MerlTable, bin_centers
 
@@ -26,7 +27,7 @@ BoolArray = npt.NDArray[np.bool_]
 CHANNELS = ("r", "g", "b")
 
 
-class FitError(ValueError):
+class FitError(InputError, ValueError):
     """The data cannot support the requested fit (too few samples, invalid uncertainties, degeneracy)."""
 
 

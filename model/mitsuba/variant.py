@@ -28,6 +28,7 @@ from collections.abc import Iterator
 import drjit as dr
 import mitsuba as mi
 
+from model.errors import GonioError
 from model.runtime import drjit_thread_budget
 
 drjit_thread_budget()  # a Dask worker's OMP_NUM_THREADS=1 holds for Dr.Jit's pool too
@@ -47,7 +48,7 @@ _lock = threading.RLock()
 _reasons: dict[str, str | None] = {}
 
 
-class VariantUnavailable(RuntimeError):
+class VariantUnavailable(GonioError, RuntimeError):
     """A Mitsuba variant that was asked for does not load here; the message says why."""
 
 

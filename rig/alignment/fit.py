@@ -26,6 +26,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import least_squares
 
+from model.errors import InputError
 from rig.alignment.model import coat_peak, predict
 from rig.alignment.observe import FrameObservation, Highlight
 from rig.instrument.alignment import PARAMETERS, Alignment, alignment_of, parameters_of
@@ -50,7 +51,7 @@ LABELS = {"wedge_x_deg": "sample_tilt_deg (x)", "wedge_y_deg": "sample_tilt_deg 
           "offset_z_mm": "sample_offset_mm z"}  # fmt: skip
 
 
-class CalibrationError(ValueError):
+class CalibrationError(InputError, ValueError):
     """The captures cannot calibrate the rig (too few, nothing found); the message says what to change."""
 
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from model.errors import InputError
 from model.geometry import degrees_to_vector
 from rig.instrument.alignment import Alignment, aligned_inverse
 from rig.instrument.geometry import RigGeometry
@@ -40,7 +41,7 @@ MIRROR_INCIDENCES_DEG = (20.0, 30.0, 40.0)
 MIN_CAPTURES = 8
 
 
-class PoseError(ValueError):
+class PoseError(InputError, ValueError):
     """The rig cannot take the calibration's poses (limits, separation); the message names the pose."""
 
 

@@ -5,8 +5,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from model.errors import InputError
 
-class AxisLimitError(ValueError):
+
+class AxisLimitError(InputError, ValueError):
     """A target lies outside an axis's soft limits."""
 
 

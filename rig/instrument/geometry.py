@@ -23,6 +23,8 @@ import math
 from dataclasses import dataclass, field, fields
 from typing import Literal, get_args
 
+from model.errors import InputError
+
 Layout = Literal["four_axis", "in_plane", "fixed_camera"]
 LAYOUTS: tuple[str, ...] = get_args(Layout)
 
@@ -34,7 +36,7 @@ JOINT_NAMES: dict[str, tuple[str, ...]] = {
 }
 
 
-class GeometryError(ValueError):
+class GeometryError(InputError, ValueError):
     """A rig geometry field is outside its valid range."""
 
 

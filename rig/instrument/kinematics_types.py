@@ -14,6 +14,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from model.errors import InputError
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics_checks import CheckDetails, explain
 
@@ -118,7 +119,7 @@ class Unreachable:
     joints: Joints | None = None
 
 
-class UnreachableError(ValueError):
+class UnreachableError(InputError, ValueError):
     """Raised by ``require`` for an unreachable point; carries the ``Unreachable`` in ``.unreachable``."""
 
     def __init__(self, unreachable: Unreachable) -> None:

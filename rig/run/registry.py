@@ -13,13 +13,14 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from acquisition.registry import Registry
+from model.errors import InputError
 
 GROUP = "gonio.backends"
 #: gonio's own backends, in the order error messages list them (others follow alphabetically).
 BUILTIN = ("simulated", "dynamixel", "grbl")
 
 
-class BackendError(LookupError):
+class BackendError(InputError, LookupError):
     """No backend is registered under a name, or a registered one cannot be loaded."""
 
 

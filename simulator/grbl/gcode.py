@@ -13,6 +13,8 @@ import re
 from dataclasses import dataclass, replace
 from enum import IntEnum
 
+from model.errors import GonioError
+
 MM_PER_INCH = 25.4
 MAX_LINE_NUMBER = 10_000_000
 MAX_TOOL_NUMBER = 255
@@ -73,7 +75,7 @@ class Alarm(IntEnum):
     HOMING_FAIL_APPROACH = 9
 
 
-class GcodeError(Exception):
+class GcodeError(GonioError):
     """A line GRBL rejects; ``status`` is its error code."""
 
     def __init__(self, status: Status) -> None:

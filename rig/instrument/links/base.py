@@ -5,11 +5,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Protocol, runtime_checkable
 
+from model.errors import HardwareFault
+
 Pose = Mapping[str, float]
 """Joint angles in degrees keyed by axis name."""
 
 
-class LinkError(RuntimeError):
+class LinkError(HardwareFault, RuntimeError):
     """A link failed in a way the caller should see: names the device, axis and what went wrong."""
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.files.atomic import atomic_path
+from model.errors import InputError
 from rig.instrument.calibration_file import GeometryCalibration
 from rig.run.config.files import RigConfig, as_table, rig_config, saved_rig
 
@@ -22,7 +23,7 @@ STATE = "adaptive.json"
 FORMAT = "gonio-adaptive/1"
 
 
-class AdaptiveStateError(ValueError):
+class AdaptiveStateError(InputError, ValueError):
     """An adaptive directory that cannot be resumed or read; the message names the file and what is wrong."""
 
 

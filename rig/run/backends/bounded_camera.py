@@ -25,11 +25,12 @@ from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
 from acquisition.frame import Camera, ExposureSettings, Frame
+from model.errors import CameraFault
 
 T = TypeVar("T")
 
 
-class CameraError(RuntimeError):
+class CameraError(CameraFault, RuntimeError):
     """The camera answered with something that is not what was asked for (no frame, a wrong type)."""
 
 

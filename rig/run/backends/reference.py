@@ -14,9 +14,10 @@ from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
 from acquisition.board import ChArUcoBoard
+from model.errors import InputError
 
 
-class OperatorAbsent(RuntimeError):
+class OperatorAbsent(InputError, RuntimeError):
     """A prompt for the operator found standard input closed: nobody is there to answer it."""
 
 

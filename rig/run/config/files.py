@@ -26,6 +26,8 @@ from pydantic import BaseModel, ValidationError
 
 import model
 from model.base import Model
+from model.errors import InputError
+from model.plain import json_copy
 from model.spelling import did_you_mean
 from rig.instrument.alignment import Alignment
 from rig.instrument.axis import Axis
@@ -46,7 +48,7 @@ FloatArray = npt.NDArray[np.float64]
 M = TypeVar("M", bound=BaseModel)
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError, ValueError):
     """A rig or sweep file is unreadable or invalid; the message names the file, key, value and expectation."""
 
 
@@ -63,10 +65,6 @@ def _key(loc: tuple[int | str, ...]) -> str:
 def _short(value: Any) -> str:
     text = repr(value)
     return text if len(text) <= 80 else text[:77] + "..."
-
-
-def _plain(value: Any) -> Any:
-    return [_plain(v) for v in value] if isinstance(value, tuple) else value
 
 
 def _table_model(model: type[BaseModel], loc: tuple[int | str, ...]) -> type[BaseModel] | None:
@@ -144,7 +142,7 @@ def _messages(path: Path, model: type[BaseModel], err: ValidationError) -> str:
             msg = str(e["msg"])
             msg = "a value " + msg.removeprefix("Input should be ") if msg.startswith("Input should be ") else msg
             msg = msg.replace("a value a ", "a ").replace("a value an ", "an ")
-            shown = _short(_plain(e["input"])) if not isinstance(e["input"], dict) else "(table)"
+            shown = _short(json_copy(e["input"])) if not isinstance(e["input"], dict) else "(table)"
             head = f"{path}: {key} = {shown}: expected "
             text = msg[0].lower() + msg[1:] if msg else "a valid value"
             if e["type"] in _TYPE_ERRORS:
@@ -520,7 +518,7 @@ def _material(cfg: RigFile, path: Path) -> Model:
     for key, value in given.items():
         if key not in accepted:
             raise ConfigError(
-                f"{where}.{key} = {_short(_plain(value))}: {cls.__name__} has no parameter {key!r}; its parameters "
+                f"{where}.{key} = {_short(json_copy(value))}: {cls.__name__} has no parameter {key!r}; its parameters "
                 f"are {', '.join(accepted) or 'none'}{did_you_mean(key, list(accepted))}"
             )
     missing = [k for k, required in accepted.items() if required and k not in given]

@@ -40,6 +40,7 @@ from tqdm import tqdm
 
 from acquisition.frame import Camera
 from acquisition.roi import channel_list
+from model.errors import EXIT_INTERRUPTED, CameraFault, GonioError, HardwareFault
 from rig.instrument.alignment import Alignment, aligned_forward, light_distance_m
 from rig.instrument.axis import Axis
 from rig.instrument.calibration_file import GeometryCalibration
@@ -65,12 +66,14 @@ from rig.run.tables.samples import build_rows
 TorquePolicy = Literal["torque_off", "hold"]
 
 
-class RunStopped(RuntimeError):
-    """The run stopped before its end; the journal holds every point measured. ``cause`` says why."""
+class RunStopped(GonioError, RuntimeError):
+    """The run stopped early; the journal holds every point measured. ``cause`` says why, ``exit_code`` whose it is."""
 
     def __init__(self, message: str, cause: Literal["interrupted", "hardware", "camera"]) -> None:
         super().__init__(message)
         self.cause = cause
+        self.exit_code = {"interrupted": EXIT_INTERRUPTED, "hardware": HardwareFault.exit_code,
+                          "camera": CameraFault.exit_code}[cause]  # fmt: skip
 
 
 class DriftWarning(UserWarning):
@@ -530,5 +533,5 @@ class Runner:
             print(f"gonio: warning: {exc}", file=sys.stderr)
 
 
-class _CameraFailed(RuntimeError):
+class _CameraFailed(CameraFault, RuntimeError):
     """A capture failed twice at one point (or the reference cannot be read)."""

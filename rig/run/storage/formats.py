@@ -22,6 +22,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from model.errors import GonioError
+from model.plain import json_walk
+
 Float32Array = npt.NDArray[np.float32]
 
 VARIANCE_SUFFIX = ".var"
@@ -154,105 +157,25 @@ def parse_journal(data: bytes) -> tuple[list[dict[str, Any]], int, int]:
     return records, good, torn
 
 
-class _NotJson(Exception):
-    """Raised by ``_plain_json`` at anything ``jsonable`` refuses; ``jsonable`` then finds and names it."""
-
-
-def _plain_json(value: Any) -> Any:
-    """``jsonable`` without building the key path of every value: a journal record has hundreds of them."""
-    # The exact plain types first (nearly every value of a record), then the general walk below.
-    kind = type(value)
-    if kind is float:
-        if not math.isfinite(value):
-            raise _NotJson
-        return value
-    if kind is str or kind is int or kind is bool or value is None:
-        return value
-    if kind is list or kind is tuple:
-        return [_plain_json(v) for v in value]
-    if kind is dict:
-        out = {}
-        for k, v in value.items():
-            if not isinstance(k, str):
-                raise _NotJson
-            out[k] = _plain_json(v)
-        return out
-    if isinstance(value, np.ndarray | np.generic):
-        value = value.tolist()
-    if value is None or isinstance(value, bool | int | str):
-        return value
-    if isinstance(value, float):
-        if not math.isfinite(value):
-            raise _NotJson
-        return value
-    if isinstance(value, Mapping):
-        out = {}
-        for k, v in value.items():
-            if not isinstance(k, str):
-                raise _NotJson
-            out[k] = _plain_json(v)
-        return out
-    if isinstance(value, list | tuple):
-        return [_plain_json(v) for v in value]
-    raise _NotJson
-
-
-class NotExactJson(Exception):
+class NotExactJson(GonioError):
     """Raised by ``exact_json`` at anything but exact plain JSON types (a subclass, a numpy value, NaN)."""
+
+
+def _not_exact(value: Any) -> Any:
+    raise NotExactJson
 
 
 def exact_json(value: Any) -> Any:
     """A fresh copy of ``value`` made only of exact JSON types: what ``json.loads`` reads back from its text.
 
-    The journal keeps this copy instead of parsing the line it wrote (a visible share of a record). Only exact
-    types qualify: an IntEnum, a float or str subclass or a numpy scalar would read back as another type, so
-    it raises ``NotExactJson`` there and the caller takes the general path (``jsonable``, then a re-parse).
+    The journal keeps this copy instead of parsing the line it wrote. Only exact types qualify: an IntEnum, a
+    float or str subclass or a numpy scalar would read back as another type, so it raises ``NotExactJson`` there
+    and the caller takes the general path (``model.plain.jsonable``, then a re-parse).
     """
-    kind = type(value)
-    if kind is float:
-        if not math.isfinite(value):
-            raise NotExactJson
-        return value
-    if kind is str or kind is int or kind is bool or value is None:
-        return value
-    if kind is list or kind is tuple:
-        return [exact_json(v) for v in value]
-    if kind is dict:
-        out = {}
-        for k, v in value.items():
-            if type(k) is not str:
-                raise NotExactJson
-            out[k] = exact_json(v)
-        return out
-    raise NotExactJson
+    return _walk_exact(value)
 
 
-def jsonable(value: Any, where: str) -> Any:
-    """``value`` as plain JSON types (numpy scalars and arrays become numbers and lists); errors name the key."""
-    try:
-        return _plain_json(value)
-    except _NotJson:
-        return _named(value, where)  # raises, naming the first value refused
-
-
-def _named(value: Any, where: str) -> Any:
-    """``jsonable``'s walk with the key path of every value, so that the error names the one refused."""
-    if isinstance(value, np.ndarray | np.generic):
-        value = value.tolist()
-    if value is None or isinstance(value, bool | int | str):
-        return value
-    if isinstance(value, float):
-        if not math.isfinite(value):
-            raise ValueError(f"{where} = {value!r}: non-finite numbers are refused (use None for a missing value)")
-        return value
-    if isinstance(value, Mapping):
-        bad = [k for k in value if not isinstance(k, str)]
-        if bad:
-            raise ValueError(f"{where} has key {bad[0]!r}: expected str keys")
-        return {k: _named(v, f"{where}[{k!r}]") for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_named(v, f"{where}[{i}]") for i, v in enumerate(value)]
-    raise ValueError(f"{where} = {value!r} ({type(value).__name__}): not representable in JSON")
+_walk_exact = json_walk(_not_exact, _not_exact)
 
 
 def _cell(row: int, col: str, value: Any) -> str:

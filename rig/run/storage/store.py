@@ -35,17 +35,10 @@ from typing import Any, Self
 from numpy.typing import ArrayLike
 
 from acquisition.files.atomic import atomic_path
+from model.errors import InputError
+from model.plain import json_copy, jsonable
 from model.version import gonio_version
-from rig.run.storage.formats import (
-    Float32Array,
-    NotExactJson,
-    csv_text,
-    exact_json,
-    jsonable,
-    parse_journal,
-    read_exr,
-    write_exr,
-)
+from rig.run.storage.formats import Float32Array, NotExactJson, csv_text, exact_json, parse_journal, read_exr, write_exr
 
 FORMAT = "gonio-run/1"
 MANIFEST, JOURNAL, LOCK, STATUS, IMAGES = "manifest.json", "journal.jsonl", "lock", "status.json", "images"
@@ -54,7 +47,7 @@ _RESERVED = ("format", "created_utc", "gonio_version")
 _NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]{0,127}")
 
 
-class RunStoreError(RuntimeError):
+class RunStoreError(InputError, RuntimeError):
     """A run directory or one of its files is missing, locked, corrupt, or the call would damage it."""
 
 
@@ -150,15 +143,6 @@ def _dumps(value: Any, **kw: Any) -> str:
 #: The journal line's encoder, made once (json.dumps with keywords builds one a call): the encoder json.dumps
 #: builds from the same keywords, so the same text.
 _encode_line = json.JSONEncoder(allow_nan=False, ensure_ascii=True, separators=(",", ":")).encode
-
-
-def _copy_json(value: Any) -> Any:
-    """A deep copy of plain JSON values (dicts, lists and immutable scalars): cheaper than ``copy.deepcopy``."""
-    if isinstance(value, dict):
-        return {k: _copy_json(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_copy_json(v) for v in value]
-    return value
 
 
 def _hashable(value: Any) -> Any:
@@ -344,7 +328,7 @@ class RunStore:
         """Journal records in order (copies); a read-only view re-reads the journal each time."""
         if not self._writable:
             self._load_journal(repair=False)
-        return [_copy_json(r) for r in self._records]
+        return [json_copy(r) for r in self._records]
 
     def records_to_read(self) -> Sequence[Mapping[str, Any]]:
         """Journal records in order, the store's own (not copied: read them, never change them).

@@ -39,6 +39,7 @@ from tests.rig.run.measuring.test_check_shortcuts import reference_roi_check
 from tests.rig.run.measuring.test_reading_shortcuts import reference_level_of, reference_reduce_roi
 from tests.rig.run.measuring.test_runner_rounding import reference as reference_round
 from tests.rig.run.measuring.test_runner_rounding import reference_as_list
+from tests.rig.run.storage.test_store_jsonable import reference_jsonable
 
 
 def reference_reduce_hdr_roi(hdr: HdrImage, roi: Box, *, on_flagged: Any = "exclude") -> RoiReading:
@@ -77,7 +78,6 @@ def as_before(m: pytest.MonkeyPatch) -> None:
     import rig.instrument.kinematics as kinematics
     import rig.run.measuring.measure as measure
     import rig.run.measuring.runner as runner
-    import rig.run.storage.formats as store_formats
     import rig.run.storage.store as store
 
     m.setattr(plan, "_shortest", oracle_shortest)
@@ -93,7 +93,7 @@ def as_before(m: pytest.MonkeyPatch) -> None:
     m.setattr(kinematics, "forward_one", lambda geometry, joints: None)
     m.setattr(runner, "_f", reference_round)
     m.setattr(runner, "_as_list", reference_as_list)
-    m.setattr(store_formats, "_plain_json", lambda value: store_formats._named(value, "record"))
+    m.setattr(store, "jsonable", reference_jsonable)
     m.setattr(RunStore, "records_to_read", RunStore.records)
     m.setattr(store, "exact_json", refuse_exact)  # every record by jsonable, its line parsed again
     m.setattr(store, "_encode_line", lambda value: store._dumps(value, separators=(",", ":")))

@@ -1,14 +1,16 @@
-"""``jsonable``'s fast walk (exact plain types first) returns what its naming walk returns, types included."""
+"""``jsonable`` (model.plain's walk) returns and refuses what its naming walk did before, to the type and message."""
 
 import enum
 import json
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 import pytest
 
-from rig.run.storage.formats import NotExactJson, _named, exact_json, jsonable
+from model.plain import jsonable
+from rig.run.storage.formats import NotExactJson, exact_json
 
 
 class Colour(enum.IntEnum):
@@ -32,13 +34,34 @@ def typed(value: Any) -> Any:
     return (type(value).__name__, repr(value))
 
 
-def test_the_fast_walk_equals_the_naming_walk() -> None:
+def reference_jsonable(value: Any, where: str) -> Any:
+    """``jsonable`` before its walk was shared: a walk that built the key path of every value."""
+    if isinstance(value, np.ndarray | np.generic):
+        value = value.tolist()
+    if value is None or isinstance(value, bool | int | str):
+        return value
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ValueError(f"{where} = {value!r}: non-finite numbers are refused (use None for a missing value)")
+        return value
+    if isinstance(value, Mapping):
+        bad = [k for k in value if not isinstance(k, str)]
+        if bad:
+            raise ValueError(f"{where} has key {bad[0]!r}: expected str keys")
+        return {k: reference_jsonable(v, f"{where}[{k!r}]") for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [reference_jsonable(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    raise ValueError(f"{where} = {value!r} ({type(value).__name__}): not representable in JSON")
+
+
+def test_the_walk_equals_the_naming_walk() -> None:
     record = {
         "kind": "point", "index": 3, "flag": True, "none": None, "x": -0.0, "big": 1e300,
         "np": np.float64(0.1), "np32": np.float32(0.1), "i64": np.int64(7), "arr": np.arange(6.0).reshape(2, 3),
         "tuple": (1.0, (2, "a")), "nested": {"a": [np.bool_(True), Colour.RED, Fancy(2.5)], "b": {"c": []}},
+        Name("sub"): {Name("k"): Name("v")},
     }  # fmt: skip
-    fast, named = jsonable(record, "record"), _named(record, "record")
+    fast, named = jsonable(record, "record"), reference_jsonable(record, "record")
     assert typed(fast) == typed(named)
     assert json.dumps(fast, allow_nan=False) == json.dumps(named, allow_nan=False)
 
@@ -47,6 +70,20 @@ def test_the_fast_walk_equals_the_naming_walk() -> None:
 def test_refusals_still_name_the_value(bad: Any) -> None:
     with pytest.raises(ValueError, match=r"record\[.x.\]"):
         jsonable({"x": bad}, "record")
+
+
+@pytest.mark.parametrize("bad", [
+    math.nan, [1.0, [2.0, -math.inf]], (0, {"a": {"b": [object()]}}), np.array([[1.0, 2.0], [3.0, math.nan]]),
+    {"a": 1.0, 2: 3.0}, {"a": math.nan, 2: 3.0}, {"a": {"b": math.nan, 5: 1}}, {"l": [math.nan], "d": {1: 2}},
+    {"m": np.array([1j])}, [{"ok": 1}, {"k": (1, 2, {None: 1})}], {"deep": [[[], [np.float32(math.inf)]]]},
+    [Fancy(math.nan)], {"x": [1, 2, {"y": frozenset()}]}, {"z": {"q": np.float64(math.nan)}, 3.5: 0},
+])  # fmt: skip
+def test_a_refusal_names_what_the_naming_walk_named(bad: Any) -> None:
+    with pytest.raises(ValueError) as expected:
+        reference_jsonable({"top": bad}, "record")
+    with pytest.raises(ValueError) as got:
+        jsonable({"top": bad}, "record")
+    assert str(got.value) == str(expected.value)
 
 
 def test_records_to_read_are_the_records(tmp_path: Any) -> None:
