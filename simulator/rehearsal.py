@@ -39,7 +39,7 @@ import numpy.typing as npt
 from acquisition.board import ChArUcoBoard
 from acquisition.cameras.shot_request import take_requests
 from acquisition.frame import Frame
-from model.errors import GonioError
+from model.errors import InputError
 from rig.run.config.files import RigConfig
 from simulator.camera.simulated import DNG_MIN_SIDE, SensorPatch, SimulatedCamera, window_around
 from simulator.from_config import rig_from, spec_from
@@ -57,7 +57,7 @@ SENSOR_WITHOUT_ROI = (64, 64)
 KEEP_FRAMES = 32
 
 
-class RehearsalError(GonioError, ValueError):
+class RehearsalError(InputError, ValueError):
     """The rig file cannot be rehearsed as given (a sensor size that does not hold the ROI, a link it lacks)."""
 
 

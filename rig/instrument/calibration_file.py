@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from model.errors import GonioError
+from model.errors import InputError
 from rig.instrument.alignment import Alignment
 
 FloatArray = npt.NDArray[np.float64]
@@ -38,7 +38,7 @@ SCALARS = ("light_zero_deg", "camera_zero_deg", "tilt_zero_deg", "roll_zero_deg"
            "sample_tilt_deg", "sample_tilt_azimuth_deg")  # fmt: skip
 
 
-class CalibrationFileError(GonioError, ValueError):
+class CalibrationFileError(InputError, ValueError):
     """A geometry calibration file is unreadable or inconsistent; the message names the file and the key."""
 
 

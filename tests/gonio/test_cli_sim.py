@@ -111,6 +111,8 @@ def test_sim_grbl_with_homing_starts_locked_and_a_link_homes_and_moves_on_it() -
         (["servos", "--ids", "1,x"], "servo ids '1,x': expected e.g. 1,2,3 or 1-4"),
         (["servos", "--baud", "1500000"], "invalid choice: 1500000"),
         (["grbl", "--speed", "0"], "speed '0': expected a positive factor"),
+        (["rig", "--rig", "examples/rig_dynamixel.toml", "--link", "grbl", "--frames", "unused"],
+         "--link grbl names another link than the file's"),
     ],
 )
 def test_sim_bad_arguments(args: list[str], message: str) -> None:

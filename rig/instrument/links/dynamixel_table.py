@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from model.errors import GonioError
+from model.errors import HardwareFault
 
 ALERT_BIT = 0x80
 
@@ -184,7 +184,7 @@ MODELS: dict[int, tuple[str, ControlTable]] = {
 """Model number -> (name, control table). Only the XM430-W350 is exercised here (the virtual bus)."""
 
 
-class UnknownModelError(GonioError, ValueError):
+class UnknownModelError(HardwareFault, ValueError):
     """A servo reported a model number the link has no control table for."""
 
 
