@@ -221,6 +221,27 @@ def reduce_roi(
     """
     rad = np.asarray(radiance)
     var = np.asarray(variance)
+    _check_options(rad, var, on_flagged, error_model)
+    if not isinstance(roi, np.ndarray):
+        roi = validate_box(tuple(roi), rad.shape)  # once: the four selections below take it as checked
+    box = not isinstance(roi, np.ndarray)
+    x = _select(rad, roi, "radiance", box)
+    v = _select(var, roi, "variance", box)
+    n_pixels = x.shape[0]
+    flagged = _flagged(flags, rad.shape, roi, box, x.shape)
+    n_flagged = flagged.sum(axis=0)
+    n_dark = _dark_counts(dark, rad.shape, roi, box, x.shape)
+    if on_flagged == "raise" and n_flagged.any():
+        raise RoiError(f"{int(n_flagged.max())} of {n_pixels} ROI pixels are flagged (on_flagged='raise')")
+    if not n_flagged.any() and np.isfinite(x).all() and np.isfinite(v).all() and not (v < 0).any():
+        # Every pixel is used (the usual reading): the same sums on the same arrays as below, without
+        # the masks that would select them all (on a 16-pixel ROI, most of the reduction's cost).
+        return _all_used(x, v, n_pixels - n_flagged, n_flagged, n_dark, rad.ndim == 2, error_model)
+    return _some_used(x, v, flagged, n_flagged, n_dark, rad.ndim == 2, on_flagged, error_model)
+
+
+def _check_options(rad: npt.NDArray[Any], var: npt.NDArray[Any], on_flagged: str, error_model: str) -> None:
+    """Raise RoiError for an image that is not (H, W[, C]), a variance of another shape, or an unknown option."""
     _image_hw(rad.shape)
     if var.shape != rad.shape:
         raise RoiError(f"variance has shape {var.shape} but radiance has shape {rad.shape}: expected equal shapes")
@@ -228,36 +249,41 @@ def reduce_roi(
         raise RoiError(f"on_flagged = {on_flagged!r}: expected 'exclude', 'lower_bound' or 'raise'")
     if error_model not in ("max", "propagated", "spatial"):
         raise RoiError(f"error_model = {error_model!r}: expected 'max', 'propagated' or 'spatial'")
-    if not isinstance(roi, np.ndarray):
-        roi = validate_box(tuple(roi), rad.shape)  # once: the four selections below take it as checked
-    box = not isinstance(roi, np.ndarray)
-    x = _select(rad, roi, "radiance", box)
-    v = _select(var, roi, "variance", box)
-    n_pixels, n_ch = x.shape
+
+
+def _flagged(
+    flags: npt.ArrayLike | None, shape: tuple[int, ...], roi: Box | BoolArray, box: bool, x_shape: tuple[int, ...]
+) -> BoolArray:
+    """Which ROI pixels (N, C) are flagged (none without ``flags``); ``flags`` is (H, W) or the image's shape."""
     if flags is None:
-        flagged = np.zeros_like(x, dtype=bool)
-    else:
-        fl = np.asarray(flags)
-        if fl.shape not in (rad.shape[:2], rad.shape):
-            raise RoiError(
-                f"flags have shape {fl.shape} but radiance has shape {rad.shape}: expected (H, W) or the same shape"
-            )
-        sel = _flags(fl, roi, box)
-        flagged = np.broadcast_to(sel, x.shape) if sel.shape[1] == 1 else sel
-    n_flagged = flagged.sum(axis=0)
-    n_dark = np.zeros(n_ch, dtype=np.int64)
-    if dark is not None:
-        dk = np.asarray(dark)
-        if dk.shape not in (rad.shape[:2], rad.shape):
-            raise RoiError(f"dark has shape {dk.shape} but radiance has shape {rad.shape}: expected (H, W) or the same")
-        sel_dark = _flags(dk, roi, box, "dark")
-        n_dark = np.broadcast_to(sel_dark, x.shape).sum(axis=0) if sel_dark.shape[1] == 1 else sel_dark.sum(axis=0)
-    if on_flagged == "raise" and n_flagged.any():
-        raise RoiError(f"{int(n_flagged.max())} of {n_pixels} ROI pixels are flagged (on_flagged='raise')")
-    if not n_flagged.any() and np.isfinite(x).all() and np.isfinite(v).all() and not (v < 0).any():
-        # Every pixel is used (the usual reading): the same sums on the same arrays as below, without
-        # the masks that would select them all (on a 16-pixel ROI, most of the reduction's cost).
-        return _all_used(x, v, n_pixels - n_flagged, n_flagged, n_dark, rad.ndim == 2, error_model)
+        return np.zeros(x_shape, dtype=bool)
+    fl = np.asarray(flags)
+    if fl.shape not in (shape[:2], shape):
+        raise RoiError(f"flags have shape {fl.shape} but radiance has shape {shape}: expected (H, W) or the same shape")
+    sel = _flags(fl, roi, box)
+    return np.broadcast_to(sel, x_shape) if sel.shape[1] == 1 else sel
+
+
+def _dark_counts(
+    dark: npt.ArrayLike | None, shape: tuple[int, ...], roi: Box | BoolArray, box: bool, x_shape: tuple[int, ...]
+) -> IntArray:
+    """How many ROI pixels are dark, per channel (none without ``dark``, an (H, W) or image-shaped mask)."""
+    if dark is None:
+        return np.zeros(x_shape[1], dtype=np.int64)
+    dk = np.asarray(dark)
+    if dk.shape not in (shape[:2], shape):
+        raise RoiError(f"dark has shape {dk.shape} but radiance has shape {shape}: expected (H, W) or the same")
+    sel = _flags(dk, roi, box, "dark")
+    n_dark: IntArray = np.broadcast_to(sel, x_shape).sum(axis=0) if sel.shape[1] == 1 else sel.sum(axis=0)
+    return n_dark
+
+
+def _some_used(
+    x: FloatArray, v: FloatArray, flagged: BoolArray, n_flagged: IntArray, n_dark: IntArray, one: bool,
+    on_flagged: FlaggedPolicy, error_model: ErrorModel,
+) -> RoiReading:
+    """``reduce_roi``'s reading where some pixel is flagged, not finite or of negative variance."""
+    n_pixels, n_ch = x.shape
     used = ~flagged if on_flagged == "exclude" else np.ones_like(flagged)
     lower_bound = on_flagged == "lower_bound" and bool(n_flagged.any())
 
@@ -295,7 +321,6 @@ def reduce_roi(
     else:
         se = np.fmax(prop, spatial)  # fmax: a single pixel has no spatial estimate, use the propagated one
 
-    one = rad.ndim == 2
     return RoiReading(
         mean=_per_channel(mean, one),
         std_error=_per_channel(se, one),

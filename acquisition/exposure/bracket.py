@@ -6,9 +6,14 @@ counts/s at gain 1, SNRs dimensionless.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
-from acquisition.exposure.snr import Frames, pixel_snr
+import numpy as np
+
+from acquisition.exposure.snr import FloatArray, Frames, pixel_snr
+from acquisition.exposure.spec import CameraTiming, RoiLevel, _Rules
 from acquisition.noise import SensorNoise
 
 
@@ -98,3 +103,71 @@ def _greedy_pixel(
             frames[best[1]] = frames.get(best[1], 0) + 1
         else:
             return frames, False
+
+
+def _ladder(
+    levels: Sequence[RoiLevel], cam: CameraTiming, t_top: float, limit_dn: float, dark_rate: float, ratio: float
+) -> list[float]:
+    """Exposures (s) a bracket may add: ``t_top``, then ``ratio`` apart up to the longest that keeps the darkest
+    ROI pixel below ``limit_dn`` counts (or the camera's longest), that one included."""
+    darkest = min((lv.dark_dn_per_s or 0.0) * cam.gain + dark_rate for lv in levels)
+    t_dark = limit_dn / darkest if darkest > 0 else math.inf
+    cap = cam.floor(min(t_dark, cam.max_exposure_s)) or t_top
+    ladder = [t_top]
+    while ladder[-1] * ratio <= cap * (1 + 1e-9):
+        nxt = cam.floor(ladder[-1] * ratio)
+        if nxt is None or nxt <= ladder[-1]:
+            break
+        ladder.append(nxt)
+    if cap >= t_top * ratio and cap > ladder[-1] * (1 + 1e-9):
+        ladder.append(cap)
+    return ladder
+
+
+@dataclass(frozen=True, eq=False)
+class _WorstPixel:
+    """The lowest per-pixel SNR a set of frames gives over the ROI's rates ``grid`` (counts/s), and that rate."""
+
+    grid: FloatArray
+    noise: SensorNoise
+    gain: float
+    dark_frames: int
+
+    def __call__(self, frames: Frames) -> tuple[float, float]:
+        """(SNR, rate in counts/s) of the worst pixel; (0, 0) for an ROI without light."""
+        if not self.grid.size:
+            return 0.0, 0.0  # no light in the ROI
+        ts = [t for t, k in frames.items() for _ in range(k)]
+        s = pixel_snr(self.grid, self.noise, ts, self.gain, self.dark_frames)
+        i = int(np.argmin(s))
+        return float(s[i]), float(self.grid[i])
+
+
+def _lift_dark_end(
+    frames: Frames, reached: bool, notes: list[str], pixel_target: float, roi_ok: Callable[[Frames], bool],
+    worst: _WorstPixel, ladder: Sequence[float], t_top: float, rules: _Rules,
+) -> tuple[Frames, bool]:
+    """Longer frames from ``ladder`` (s) until the worst pixel reaches ``pixel_target``, then the spare ones dropped.
+
+    ``roi_ok(frames)`` says whether the ROI mean still reaches its target (the pruning keeps it so).
+    Returns (frames, reached) and appends to ``notes`` why the target was missed and which frames clip the
+    bright pixels.
+    """
+    frames, ok = _greedy_pixel(frames, worst, ladder, pixel_target, rules.safety * rules.sat, rules.dr,
+                               rules.cam.overhead_s, rules.dark_frames, rules.max_frames, rules.budget, rules.noise,
+                               rules.cam.gain)  # fmt: skip
+    if ok and reached:
+        frames = _prune(frames, lambda fr: roi_ok(fr) and worst(fr)[0] >= pixel_target)
+    if not ok:
+        reached = False
+        notes.append(
+            f"per-pixel SNR {pixel_target:g} unreachable within max_frames/max_total_s: "
+            f"lowest achieved {worst(frames)[0]:.4g}"
+        )
+    long = [t for t in sorted(frames) if t > t_top * (1 + 1e-9)]
+    if long:
+        notes.append(
+            f"bracket: frames of {', '.join(f'{t:.4g}' for t in long)} s saturate the brighter ROI pixels "
+            "(the merge ignores those samples) to lift the dark end"
+        )
+    return frames, reached

@@ -42,10 +42,11 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
-from acquisition.exposure.bracket import _cost, _greedy_pixel, _prune
+from acquisition.exposure.bracket import _cost, _ladder, _lift_dark_end, _WorstPixel
 from acquisition.exposure.snr import (
     Frames,
     _dark_rate,
@@ -56,7 +57,7 @@ from acquisition.exposure.snr import (
     roi_snr,
     single_exposure_min_snr,
 )
-from acquisition.exposure.spec import CameraTiming, ExposureError, ExposurePlan, RoiLevel, _finite
+from acquisition.exposure.spec import CameraTiming, ExposureError, ExposurePlan, RoiLevel, _finite, _Rules
 from acquisition.noise import SensorNoise
 
 
@@ -84,6 +85,35 @@ def plan_exposure(
     """
     cam = camera or CameraTiming()
     levels = [level] if isinstance(level, RoiLevel) else list(level)
+    target, budget = _checked(levels, target_snr, pixel_snr_target, safety, dark_frames, max_frames, max_total_s,
+                              bracket_ratio)  # fmt: skip
+    rules = _Rules(noise, cam, safety, dark_frames, max_frames, budget, noise.saturation_dn(cam.gain),
+                   _dark_rate(noise, cam.gain))  # fmt: skip
+    roi = _RoiSnr.of(levels, noise, cam.gain, dark_frames, target)
+
+    # The ROI mean: the longest frame the peak allows, repeated until it reaches the target, then shortened.
+    t_top, n_cap, limits = _longest_frame(levels, rules)
+    frames, reached, notes = _repeat_frames(roi.snr_of, target, t_top, n_cap, max_frames, cam, limits, roi.guess,
+                                            roi.reaches)  # fmt: skip
+
+    # The worst pixel's SNR, known whenever every channel's dark level is; asked for, it may add longer frames.
+    expected_pixel: float | None = None
+    if pixel_snr_target is not None or all(lv.dark_dn_per_s is not None for lv in levels):
+        ladder = _ladder(levels, cam, t_top, safety * rules.sat, rules.dr, bracket_ratio)
+        worst = _WorstPixel(_pixel_grid(levels, ladder, rules.sat, rules.dr, cam.gain), noise, cam.gain, dark_frames)
+        if pixel_snr_target is not None:
+            frames, reached = _lift_dark_end(frames, reached, notes, pixel_snr_target,
+                                             lambda fr: roi.snr_of(fr) >= target, worst, ladder, t_top, rules)
+        expected_pixel = worst(frames)[0]
+
+    return _as_plan(levels, frames, reached, expected_pixel, notes, pixel_snr_target, roi, rules)
+
+
+def _checked(
+    levels: Sequence[RoiLevel], target_snr: float, pixel_snr_target: float | None, safety: float, dark_frames: int,
+    max_frames: int, max_total_s: float | None, bracket_ratio: float,
+) -> tuple[float, float]:
+    """The request checked: (target ROI SNR, time budget in seconds or inf); a ValueError names a bad argument."""
     if not levels:
         raise ValueError("plan_exposure: no ROI level given")
     target = _finite("plan_exposure", "target_snr", target_snr, lo_open=True)
@@ -104,106 +134,61 @@ def plan_exposure(
                 "dark_dn_per_s = None"
             )
     budget = math.inf if max_total_s is None else _finite("plan_exposure", "max_total_s", max_total_s, lo_open=True)
-    gain = cam.gain
-    sat = noise.saturation_dn(gain)
-    dr = _dark_rate(noise, gain)
+    return target, budget
 
-    # One exposure repeated (every step of the search for the shortest frame) has a faster, same-bits form.
-    one_kind = single_exposure_min_snr(levels, noise, gain, dark_frames)
 
-    def snr_of(frames: Frames) -> float:
+@dataclass(frozen=True, eq=False)
+class _RoiSnr:
+    """The ROI SNR of a set of frames (the lowest channel's), and whether it reaches ``target``."""
+
+    levels: Sequence[RoiLevel]
+    noise: SensorNoise
+    gain: float
+    dark_frames: int
+    target: float
+    #: The lowest channel's SNR of one exposure repeated: a faster form of roi_snr, the same bits.
+    one_kind: Callable[[float, int], float]
+    #: The same, channels dimmest first, stopping at the first below the target.
+    one_kind_short: Callable[[float, int], float]
+    dimmest_first: Sequence[RoiLevel]
+
+    @classmethod
+    def of(cls, levels: Sequence[RoiLevel], noise: SensorNoise, gain: float, dark_frames: int,
+           target: float) -> _RoiSnr:  # fmt: skip
+        """The checks of these channels; one exposure repeated (every step of the shortest-frame search) is fast."""
+        one_kind = single_exposure_min_snr(levels, noise, gain, dark_frames)
+        dimmest_first = sorted(levels, key=lambda lv: lv.mean_dn_per_s)
+        one_kind_short = single_exposure_min_snr(dimmest_first, noise, gain, dark_frames, stop_below=target)
+        return cls(levels, noise, gain, dark_frames, target, one_kind, one_kind_short, dimmest_first)
+
+    def snr_of(self, frames: Frames) -> float:
+        """The lowest channel's ROI SNR of these frames (exposure in seconds: count)."""
         if len(frames) == 1:
             ((t, n),) = frames.items()
-            return one_kind(t, n)
+            return self.one_kind(t, n)
         ts = [t for t, n in frames.items() for _ in range(n)]
-        return min(roi_snr(lv, noise, ts, gain, dark_frames) for lv in levels)
+        return min(roi_snr(lv, self.noise, ts, self.gain, self.dark_frames) for lv in self.levels)
 
-    dimmest_first = sorted(levels, key=lambda lv: lv.mean_dn_per_s)
-    one_kind_short = single_exposure_min_snr(dimmest_first, noise, gain, dark_frames, stop_below=target)
-
-    def reaches(frames: Frames) -> bool:
-        # snr_of(frames) >= target, stopping at the first channel short of it (the dimmest, mostly).
+    def reaches(self, frames: Frames) -> bool:
+        """``snr_of(frames) >= target``, stopping at the first channel short of it (the dimmest, mostly)."""
         if len(frames) == 1:
             ((t, n),) = frames.items()
-            return one_kind_short(t, n) >= target
+            return self.one_kind_short(t, n) >= self.target
         ts = [t for t, n in frames.items() for _ in range(n)]
-        return all(roi_snr(lv, noise, ts, gain, dark_frames) >= target for lv in dimmest_first)
+        return all(roi_snr(lv, self.noise, ts, self.gain, self.dark_frames) >= self.target for lv in self.dimmest_first)
 
-    def guess(n: int) -> float | None:
-        if any(lv.rates_dn_per_s for lv in levels):
+    def guess(self, n: int) -> float | None:
+        """The exposure (s) at which n frames reach the target, in closed form; None where there is none."""
+        if any(lv.rates_dn_per_s for lv in self.levels):
             return None  # a pixel distribution clips in parts: no closed form
-        ts = [exposure_for_snr(lv, noise, target, n, gain, dark_frames) for lv in levels]
+        ts = [exposure_for_snr(lv, self.noise, self.target, n, self.gain, self.dark_frames) for lv in self.levels]
         return max(t for t in ts if t is not None) if all(t is not None for t in ts) else None
 
-    t_top, n_cap, limits = _longest_frame(levels, noise, cam, safety, dark_frames, max_frames, budget)
-    frames, reached, notes = _repeat_frames(snr_of, target, t_top, n_cap, max_frames, cam, limits, guess, reaches)
 
-    expected_pixel: float | None = None
-    if pixel_snr_target is not None or all(lv.dark_dn_per_s is not None for lv in levels):
-        darkest = min((lv.dark_dn_per_s or 0.0) * gain + dr for lv in levels)
-        t_dark = safety * sat / darkest if darkest > 0 else math.inf
-        cap = cam.floor(min(t_dark, cam.max_exposure_s)) or t_top
-        ladder = [t_top]
-        while ladder[-1] * bracket_ratio <= cap * (1 + 1e-9):
-            nxt = cam.floor(ladder[-1] * bracket_ratio)
-            if nxt is None or nxt <= ladder[-1]:
-                break
-            ladder.append(nxt)
-        if cap >= t_top * bracket_ratio and cap > ladder[-1] * (1 + 1e-9):
-            ladder.append(cap)
-        grid = _pixel_grid(levels, ladder, sat, dr, gain)
-
-        def worst(fr: Frames) -> tuple[float, float]:
-            if not grid.size:
-                return 0.0, 0.0  # no light in the ROI
-            ts = [t for t, k in fr.items() for _ in range(k)]
-            s = pixel_snr(grid, noise, ts, gain, dark_frames)
-            i = int(np.argmin(s))
-            return float(s[i]), float(grid[i])
-
-        if pixel_snr_target is not None:
-            frames, ok = _greedy_pixel(frames, worst, ladder, pixel_snr_target, safety * sat, dr, cam.overhead_s,
-                                       dark_frames, max_frames, budget, noise, gain)
-            if ok and reached:
-                frames = _prune(frames, lambda fr: snr_of(fr) >= target and worst(fr)[0] >= pixel_snr_target)
-            if not ok:
-                reached = False
-                notes.append(
-                    f"per-pixel SNR {pixel_snr_target:g} unreachable within max_frames/max_total_s: "
-                    f"lowest achieved {worst(frames)[0]:.4g}"
-                )
-            long = [t for t in sorted(frames) if t > t_top * (1 + 1e-9)]
-            if long:
-                notes.append(
-                    f"bracket: frames of {', '.join(f'{t:.4g}' for t in long)} s saturate the brighter ROI pixels "
-                    "(the merge ignores those samples) to lift the dark end"
-                )
-        expected_pixel = worst(frames)[0]
-
-    exposures = tuple(sorted(t for t, k in frames.items() for _ in range(k)))
-    # The evaluation's own pixel SNR and verdict are replaced below, so it need not work them out.
-    known = snr_of(frames) if len(frames) == 1 else None  # the one-kind closure's bits are roi_snr's
-    plan = _evaluate(levels, noise, exposures, cam, target, pixel_snr_target, dark_frames, pixel=False, snr=known)
-    clip_peak = any((lv.peak_dn_per_s * gain + dr) * t > sat for lv in levels for t in frames)
-    if clip_peak and not all(lv.rates_dn_per_s for lv in levels):
-        notes.append("expected_snr is a lower bound: no pixel distribution given, frames clipping the peak not counted")
-    # The evaluated plan (its target, gain and pixel target are the planner's), with what only the planner knows.
-    return dataclasses.replace(
-        plan,
-        reached=reached and plan.expected_snr >= target * (1 - 1e-9),
-        expected_pixel_snr=expected_pixel,
-        notes=tuple(notes),
-    )
-
-
-def _longest_frame(
-    levels: Sequence[RoiLevel], noise: SensorNoise, cam: CameraTiming, safety: float, dark_frames: int,
-    max_frames: int, budget: float,
-) -> tuple[float, int, list[str]]:
+def _longest_frame(levels: Sequence[RoiLevel], rules: _Rules) -> tuple[float, int, list[str]]:
     """The longest frame (s) the ROI peak and the time budget allow, how many of it fit, and what bounds it."""
-    gain = cam.gain
-    sat = noise.saturation_dn(gain)
-    dr = _dark_rate(noise, gain)
+    cam, safety, dark_frames, budget = rules.cam, rules.safety, rules.dark_frames, rules.budget
+    gain, sat, dr = cam.gain, rules.sat, rules.dr
     # The longest frame in which the brightest ROI pixel stays at `safety` of saturation.
     peak = max(lv.peak_dn_per_s for lv in levels)
     t_peak = safety * sat / (peak * gain + dr) if peak * gain + dr > 0 else math.inf
@@ -220,7 +205,7 @@ def _longest_frame(
         limits.append(f"longest frame {t_top:.4g} s limited by {why} (peak would reach {safety:.0%} at {t_peak:.4g} s)")
 
     # Frames of t_top the time budget allows; a budget shorter than one frame shortens that frame.
-    n_cap = max_frames
+    n_cap = rules.max_frames
     if math.isfinite(budget):
         per_frame = t_top + cam.overhead_s
         n_cap = min(n_cap, math.floor((budget - dark_frames * per_frame) / per_frame))
@@ -319,6 +304,28 @@ def _shortest(ok: Callable[[float], bool], cam: CameraTiming, t_hi: float, guess
             a = m
     t = cam.ceil(math.exp(b))
     return t if t is not None and t <= t_hi and ok(t) else t_hi
+
+
+def _as_plan(
+    levels: Sequence[RoiLevel], frames: Frames, reached: bool, expected_pixel: float | None, notes: list[str],
+    pixel_snr_target: float | None, roi: _RoiSnr, rules: _Rules,
+) -> ExposurePlan:
+    """The frames evaluated as a plan, with what only the planner knows: its verdict, pixel SNR and notes."""
+    exposures = tuple(sorted(t for t, k in frames.items() for _ in range(k)))
+    # The evaluation's own pixel SNR and verdict are replaced below, so it need not work them out.
+    known = roi.snr_of(frames) if len(frames) == 1 else None  # the one-kind closure's bits are roi_snr's
+    plan = _evaluate(levels, rules.noise, exposures, rules.cam, roi.target, pixel_snr_target, rules.dark_frames,
+                     pixel=False, snr=known)  # fmt: skip
+    clip_peak = any((lv.peak_dn_per_s * rules.cam.gain + rules.dr) * t > rules.sat for lv in levels for t in frames)
+    if clip_peak and not all(lv.rates_dn_per_s for lv in levels):
+        notes.append("expected_snr is a lower bound: no pixel distribution given, frames clipping the peak not counted")
+    # The evaluated plan (its target, gain and pixel target are the planner's), with what only the planner knows.
+    return dataclasses.replace(
+        plan,
+        reached=reached and plan.expected_snr >= roi.target * (1 - 1e-9),
+        expected_pixel_snr=expected_pixel,
+        notes=tuple(notes),
+    )
 
 
 def evaluate_plan(

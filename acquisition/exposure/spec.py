@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from acquisition.noise import SensorNoise
 from model.errors import GonioError
 
 Steps = Sequence[float] | Callable[[float], float]
@@ -246,3 +247,17 @@ class ExposurePlan:
     def n_frames(self) -> int:
         """Number of light frames."""
         return len(self.exposures_s)
+
+
+@dataclass(frozen=True)
+class _Rules:
+    """What bounds a plan's frames: the sensor, the camera, the planner's limits, and saturation at the gain."""
+
+    noise: SensorNoise
+    cam: CameraTiming
+    safety: float  # fraction of saturation the ROI peak may reach in frames that must not clip
+    dark_frames: int  # per distinct exposure
+    max_frames: int
+    budget: float  # seconds of capture, inf without a limit
+    sat: float  # saturation, counts above black at the camera's gain
+    dr: float  # dark signal, counts/s at the camera's gain

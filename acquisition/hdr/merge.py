@@ -60,9 +60,10 @@ merge of a larger image.
 
 Layout. This module holds the result types (:class:`HdrImage`, :class:`HdrFlag`) and :func:`merge_linear`
 with its weighting decision; bracket validation, frame data, black levels and darks are in
-:mod:`acquisition.hdr.bracket`, the clip-level measurement in :mod:`acquisition.hdr.saturation` (re-exported here
-as :func:`measure_saturation`), the pass's inputs in :mod:`acquisition.hdr.prepared`, the numpy pass in
-:mod:`acquisition.hdr.small` and the compiled one in :mod:`acquisition.hdr.kernel`.
+:mod:`acquisition.hdr.bracket`, the clip level per gain in :mod:`acquisition.hdr.saturation` (its measurement
+re-exported here as :func:`measure_saturation`), the pass's inputs (offsets, noise terms, saturation thresholds)
+in :mod:`acquisition.hdr.prepared`, the numpy pass in :mod:`acquisition.hdr.small` and the compiled one in
+:mod:`acquisition.hdr.kernel`.
 """
 
 from __future__ import annotations
@@ -71,26 +72,17 @@ import enum
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
 
-from acquisition.frame import Frame, FrameError
-from acquisition.hdr.bracket import (
-    F32,
-    DarkSpec,
-    _black_map,
-    _dark_offset,
-    _find_dark,
-    _frame_data,
-    _min_black,
-    check_bracket,
-    describe_frame,
-)
-from acquisition.hdr.prepared import _Prepared
-from acquisition.hdr.saturation import _measured
+from acquisition.frame import Frame
+from acquisition.hdr.bracket import F32, DarkSpec, _frame_data, check_bracket
+from acquisition.hdr.prepared import _prepare, _Prepared
+from acquisition.hdr.saturation import _clip_levels
 from acquisition.hdr.saturation import measure_saturation as measure_saturation  # re-exported
+from acquisition.hdr.small import Pass
 from acquisition.noise import SensorNoise
 
 Weighting = Literal["auto", "sum", "inverse_variance"]
@@ -186,100 +178,12 @@ def merge_linear(
     ``saturation_dn`` is the clip level in counts above black (default: measured, see the module notes).
     """
     kind = check_bracket(frames, ("raw", "linear"))
-    if weighting not in ("auto", "sum", "inverse_variance"):
-        raise ValueError(f"weighting = {weighting!r}: expected 'auto', 'sum' or 'inverse_variance'")
-    if not (math.isfinite(saturation_sigma) and saturation_sigma >= 0):
-        raise ValueError(f"saturation_sigma = {saturation_sigma!r}: expected a number >= 0")
-    if not (math.isfinite(dark_sigma) and dark_sigma >= 0):
-        raise ValueError(f"dark_sigma = {dark_sigma!r}: expected a number >= 0")
-    if saturation_dn is not None and not (math.isfinite(saturation_dn) and saturation_dn > 0):
-        raise ValueError(f"saturation_dn = {saturation_dn!r}: expected a positive number of counts above black")
-    n_frames = len(frames)
+    _check_options(weighting, saturation_sigma, dark_sigma, saturation_dn)
     data = _frame_data(frames)
-
-    # Clip level per gain (a full-well clip in counts scales with gain; one bracket usually has one gain).
-    levels: dict[float, tuple[float, str]] = {}
-    for g in sorted({f.gain for f in frames}):
-        if saturation_dn is not None:
-            levels[g] = (float(saturation_dn), "given")
-            continue
-        measured = _measured([f for f in frames if f.gain == g])
-        if measured is not None:
-            levels[g] = (measured, "measured from the data")
-        else:
-            levels[g] = (noise.saturation_dn(g), "noise model (no clipped plateau in the data)")
-
-    black_cache: dict[tuple[Any, ...], F32] = {}
-    maps: list[npt.NDArray[Any] | None] = []
-    # Per frame, as Python floats (the same IEEE arithmetic as numpy's scalars, without their overhead).
-    off_s = [0.0] * n_frames
-    thr_raw = [0.0] * n_frames
-    thr_above = [0.0] * n_frames
-    expo = [f.exposure_s * f.gain for f in frames]
-    shot = [0.0] * n_frames
-    cvar = [0.0] * n_frames
-    dark_notes: list[str] = []
-    for i, f in enumerate(frames):
-        zero_var = float(noise.variance_dn2(0.0, f.exposure_s, f.gain))
-        if darks is None:
-            offset: npt.NDArray[Any] | float = _black_map(f, i, black_cache)
-            dark_var, note = 0.0, "black level"
-        else:
-            spec = _find_dark(darks, f.exposure_s)
-            if spec is None:
-                raise FrameError(
-                    f"{describe_frame(i, f)}: no dark for exposure {f.exposure_s:g} s; darks were given for "
-                    f"{sorted(float(k) for k in darks)} s"
-                )
-            offset, dark_var, note = _dark_offset(i, f, spec, noise, zero_var)
-        dark_notes.append(note)
-        if isinstance(offset, np.ndarray):
-            maps.append(offset)
-        else:
-            maps.append(None)
-            off_s[i] = offset
-        shot[i] = expo[i] * f.gain / noise.e_per_dn
-        cvar[i] = zero_var + dark_var
-        black = _min_black(f)
-        level = min(levels[f.gain][0], f.white_level - black)
-        thr_above[i] = level - saturation_sigma * math.sqrt(float(noise.variance_dn2(level, f.exposure_s, f.gain)))
-        thr_raw[i] = black + thr_above[i]
-
-    offmaps: tuple[npt.NDArray[Any], ...] | None = None
-    present = [m for m in maps if m is not None]
-    if len(present) == n_frames and all(m.dtype == np.uint16 for m in present):
-        # One uint16 dark frame per exposure, as delivered.
-        offmaps = tuple(present)
-    elif any(m is not None for m in maps):
-        # Otherwise all maps float32 (one type per tuple); a frame with a number for offset reads a shared
-        # zero map, one array that stays in cache.
-        zeros = np.zeros(data[0].size, np.float32)
-        as_f32 = [zeros if m is None else m.astype(np.float32, copy=False) for m in maps]
-        offmaps = tuple(as_f32)
-    # np.argmin and np.argmax's picks (the first of equals), without their overhead on a few numbers.
-    shortest, longest = expo.index(min(expo)), expo.index(max(expo))
-    prep = _Prepared(
-        data=tuple(data), offmaps=offmaps, off_s=np.array(off_s), thr_raw=np.array(thr_raw),
-        expo=np.array(expo), shot=np.array(shot), cvar=np.array(cvar), shortest=shortest, longest=longest,
-        dark_thr=dark_sigma * math.sqrt(cvar[longest]),
-    )
-
-    reason = "forced"
-    first: tuple[F32, F32, npt.NDArray[np.uint8], npt.NDArray[np.uint8]] | None = None
-    if weighting == "auto":
-        use_iv, reason, first = _decide_weighting(prep)
-    else:
-        use_iv = weighting == "inverse_variance"
-    shape = frames[0].shape
-    rad, var, flags, used = first if first is not None else prep.run(False)
-    if use_iv:
-        step = 2 if kind == "raw" or frames[0].cfa_pattern else 1
-        signal = neighbour_mean(rad.reshape(shape).astype(np.float64), step).reshape(-1)
-        rad, var, flags, used = prep.run(True, signal)
-    if (rad < 0.0).any():  # only a negative estimate can sit standard errors below zero (NaN is neither)
-        with np.errstate(invalid="ignore"):
-            below = (rad < -BELOW_BLACK_SIGMA * np.sqrt(var)) & (flags != _SATURATED)
-        flags = np.where(below, flags | _DARK_BELOW_BLACK, flags).astype(np.uint8)
+    levels = _clip_levels(frames, noise, saturation_dn)
+    prep, thresholds, dark_notes = _prepare(frames, data, noise, darks, levels, saturation_sigma, dark_sigma)
+    use_iv, reason, (rad, var, flags, used) = _passes(prep, weighting, kind, frames[0])
+    flags = _flag_below_black(rad, var, flags)
 
     no_darks = darks is None
     metadata: dict[str, object] = {
@@ -292,20 +196,62 @@ def merge_linear(
         "weighting_reason": reason,
         "saturation_level_dn": {g: lv for g, (lv, _) in levels.items()},
         "saturation_source": {g: src for g, (_, src) in levels.items()},
-        "saturation_threshold_dn": tuple(thr_above),
+        "saturation_threshold_dn": thresholds,
         "saturation_sigma": saturation_sigma,
         "dark_sigma": dark_sigma,
         "darks_used": not no_darks,
         "darks": (
             "none: black level subtracted, dark current not removed (dim pixels read high by "
-            "dark_current_e_per_s * t / e_per_dn counts)" if no_darks else tuple(dark_notes)
+            "dark_current_e_per_s * t / e_per_dn counts)" if no_darks else dark_notes
         ),
         "noise": {name: getattr(noise, name) for name in _field_names(type(noise))},  # asdict, without copying
     }
+    shape = frames[0].shape
     return HdrImage(
         radiance=rad.reshape(shape), variance=var.reshape(shape), flags=flags.reshape(shape),
         frames_used=used.reshape(shape), exposures_s=tuple(float(f.exposure_s) for f in frames), metadata=metadata,
     )
+
+
+def _check_options(weighting: str, saturation_sigma: float, dark_sigma: float, saturation_dn: float | None) -> None:
+    """Raise ValueError naming the first of merge_linear's options out of its range."""
+    if weighting not in ("auto", "sum", "inverse_variance"):
+        raise ValueError(f"weighting = {weighting!r}: expected 'auto', 'sum' or 'inverse_variance'")
+    if not (math.isfinite(saturation_sigma) and saturation_sigma >= 0):
+        raise ValueError(f"saturation_sigma = {saturation_sigma!r}: expected a number >= 0")
+    if not (math.isfinite(dark_sigma) and dark_sigma >= 0):
+        raise ValueError(f"dark_sigma = {dark_sigma!r}: expected a number >= 0")
+    if saturation_dn is not None and not (math.isfinite(saturation_dn) and saturation_dn > 0):
+        raise ValueError(f"saturation_dn = {saturation_dn!r}: expected a positive number of counts above black")
+
+
+def _passes(prep: _Prepared, weighting: Weighting, kind: str, first_frame: Frame) -> tuple[bool, str, Pass]:
+    """The merge's pass or passes: (inverse-variance used, why, the pass's flat radiance, variance, flags, frames).
+
+    The sum pass always runs (or comes from the auto decision, on a small image); the inverse-variance pass
+    weights by its neighbours' level, each pixel's own left out (see the module notes).
+    """
+    reason = "forced"
+    first: Pass | None = None
+    if weighting == "auto":
+        use_iv, reason, first = _decide_weighting(prep)
+    else:
+        use_iv = weighting == "inverse_variance"
+    rad, var, flags, used = first if first is not None else prep.run(False)
+    if use_iv:
+        step = 2 if kind == "raw" or first_frame.cfa_pattern else 1
+        signal = neighbour_mean(rad.reshape(first_frame.shape).astype(np.float64), step).reshape(-1)
+        rad, var, flags, used = prep.run(True, signal)
+    return use_iv, reason, (rad, var, flags, used)
+
+
+def _flag_below_black(rad: F32, var: F32, flags: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
+    """The flags with DARK and BELOW_BLACK set where the estimate is BELOW_BLACK_SIGMA std errors below zero."""
+    if (rad < 0.0).any():  # only a negative estimate can sit standard errors below zero (NaN is neither)
+        with np.errstate(invalid="ignore"):
+            below = (rad < -BELOW_BLACK_SIGMA * np.sqrt(var)) & (flags != _SATURATED)
+        flags = np.where(below, flags | _DARK_BELOW_BLACK, flags).astype(np.uint8)
+    return flags
 
 
 #: The flags as plain numbers: numpy operations with an IntFlag convert it on every call.
@@ -347,7 +293,7 @@ def neighbour_mean(image: npt.NDArray[np.float64], step: int = 1) -> npt.NDArray
 
 def _decide_weighting(
     prep: _Prepared,
-) -> tuple[bool, str, tuple[F32, F32, npt.NDArray[np.uint8], npt.NDArray[np.uint8]] | None]:
+) -> tuple[bool, str, Pass | None]:
     """Auto weighting: would the inverse-variance pass lower the standard error enough, on a pixel sample?
 
     Also returns the sample's sum pass when the sample is every pixel (a small image): the merge's own.

@@ -1,8 +1,8 @@
 """Measuring a bracket's clip level from the data: the plateau of clipped pixels at the top of its frames.
 
-Holds :func:`measure_saturation` and ``_plateau_level`` (one frame's plateau, from a count of the pixels in
-the plateau and just below it: numpy for a small frame, compiled for a large one, the same numbers). See
-:mod:`acquisition.hdr.merge` for how the merge uses the level.
+Holds :func:`measure_saturation`, ``_plateau_level`` (one frame's plateau, from a count of the pixels in
+the plateau and just below it: numpy for a small frame, compiled for a large one, the same numbers) and
+``_clip_levels`` (the level per gain a merge uses). See :mod:`acquisition.hdr.merge` for how the merge uses it.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from acquisition.frame import Frame
 from acquisition.hdr.bracket import _flat, _min_black, check_bracket
 from acquisition.hdr.compiled import compiled
 from acquisition.hdr.small import NUMPY_BELOW, top_counts
+from acquisition.noise import SensorNoise
 
 
 def _plateau_level(frame: Frame, min_pixels: int, min_fraction: float) -> float | None:
@@ -73,3 +74,24 @@ def _measured(frames: Sequence[Frame], min_pixels: int = 16, min_fraction: float
         return None
     # np.median's own arithmetic on one or two values (the mean of the middle two), without its overhead.
     return levels[0] if len(levels) == 1 else (levels[0] + levels[1]) / 2.0
+
+
+def _clip_levels(
+    frames: Sequence[Frame], noise: SensorNoise, saturation_dn: float | None
+) -> dict[float, tuple[float, str]]:
+    """Per gain of a checked bracket, its clip level in counts above black and where that comes from.
+
+    Given (``saturation_dn``), else measured from the frames of that gain, else the noise model's: a
+    full-well clip in counts scales with gain (one bracket usually has one gain).
+    """
+    levels: dict[float, tuple[float, str]] = {}
+    for g in sorted({f.gain for f in frames}):
+        if saturation_dn is not None:
+            levels[g] = (float(saturation_dn), "given")
+            continue
+        measured = _measured([f for f in frames if f.gain == g])
+        if measured is not None:
+            levels[g] = (measured, "measured from the data")
+        else:
+            levels[g] = (noise.saturation_dn(g), "noise model (no clipped plateau in the data)")
+    return levels

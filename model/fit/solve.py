@@ -42,8 +42,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from html import escape
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -51,6 +50,7 @@ import numpy.typing as npt
 from model._params import ParameterError
 from model.base import Model
 from model.fit.problem import Problem, Rows, jacobian, solve_staged
+from model.fit.result import FitResult, FitWarning
 from model.fit.samples import FitError, Samples
 from model.fit.spec import LAMBERT, FitSpec, Param, blinn_phong, ggx_conductor, lambert_ggx, ward_anisotropic
 
@@ -68,115 +68,6 @@ __all__ = [
     "LAMBERT", "FitError", "FitResult", "FitSpec", "FitWarning", "Param", "Samples", "blinn_phong", "fit",
     "ggx_conductor", "lambert_ggx", "ward_anisotropic",
 ]  # fmt: skip
-
-
-class FitWarning(UserWarning):
-    """A fit succeeded but some of its numbers deserve less trust than they seem to (see the message)."""
-
-
-@dataclass(frozen=True, eq=False)
-class FitResult:
-    """A fitted model with its parameters, their std errors (field units) and the goodness of fit.
-
-    ``residuals`` (N, C) are (model - value) / std_error at the ordinary samples used; ``chi2`` their sum
-    of squares over ``dof`` = N C - n_params degrees of freedom; ``loss_value`` the optimiser's cost
-    (0.5 sum rho(r^2), constraints included). ``n_bounds`` saturated samples entered as lower bounds;
-    ``bound_chi2`` is the sum of their squared shortfalls max(0, value - model) / std_error (0 when the
-    model clears every bound; computed in "exclude" mode too).
-    """
-
-    spec: str
-    model: Model
-    names: tuple[str, ...]
-    values: Array
-    std_errors: Array
-    covariance: Array
-    residuals: Array
-    chi2: float
-    dof: int
-    loss: str
-    robust: str | None
-    loss_value: float
-    n_samples: int
-    n_excluded: int
-    n_starts: int
-    n_starts_agreeing: int
-    std_error_assumed: bool
-    warnings: tuple[str, ...]
-    n_bounds: int = 0
-    bound_chi2: float = 0.0
-
-    @property
-    def n_params(self) -> int:
-        """Number of fitted numbers."""
-        return len(self.names)
-
-    @property
-    def reduced_chi2(self) -> float:
-        """chi2 / dof; about 1 when the residuals are at the level of the std errors."""
-        return self.chi2 / self.dof if self.dof > 0 else float("nan")
-
-    @property
-    def p_value(self) -> float:
-        """Probability of a chi2 at least this large if the model were true and the errors right."""
-        # chdtrc is chi2's survival function itself; scipy.stats would import far more than one function needs.
-        from scipy import special  # here: a process that only reads fit results need not load scipy
-
-        return float(special.chdtrc(self.dof, self.chi2)) if self.dof > 0 else float("nan")
-
-    @property
-    def noise_reached(self) -> bool:
-        """Whether the reduced chi2 is within 3 standard deviations of 1 (residuals at the noise)."""
-        return bool(self.dof > 0 and self.reduced_chi2 <= 1.0 + 3.0 * np.sqrt(2.0 / self.dof))
-
-    @property
-    def aic(self) -> float:
-        """Akaike's criterion for Gaussian errors of known size: chi2 + 2 k."""
-        return self.chi2 + 2.0 * self.n_params
-
-    @property
-    def bic(self) -> float:
-        """Schwarz's Bayesian criterion: chi2 + k ln(n), n = number of residuals."""
-        return self.chi2 + self.n_params * float(np.log(self.residuals.size))
-
-    def param(self, name: str) -> tuple[float, float]:
-        """(value, std error) of one fitted number by label, e.g. "alpha" or "rho_d_r"."""
-        i = self.names.index(name)
-        return float(self.values[i]), float(self.std_errors[i])
-
-    def summary(self) -> str:
-        """A few lines of text: parameters +- std errors, chi2, and the warnings."""
-        noise = "assumed" if self.std_error_assumed else "measured"
-        lines = [
-            f"{self.spec} fit to {self.n_samples} samples ({self.n_excluded} excluded"
-            + (f", {self.n_bounds} lower bounds, shortfall chi2 {self.bound_chi2:.3g}" if self.n_bounds else "")
-            + f"), loss {self.loss}" + (f" ({self.robust})" if self.robust else "")
-            + f", {self.n_starts_agreeing}/{self.n_starts} starts agree",
-            *(f"  {n:>12} = {v:.6g} +- {e:.2g}" for n, v, e in zip(self.names, self.values, self.std_errors)),  # noqa: B905
-            f"  chi2 = {self.chi2:.4g} for {self.dof} dof (reduced {self.reduced_chi2:.3g}, p = {self.p_value:.3g}) "
-            f"against the {noise} std errors: residuals {'at' if self.noise_reached else 'above'} the noise",
-        ]  # fmt: skip
-        return "\n".join(lines + [f"  warning: {w}" for w in self.warnings])
-
-    def _repr_html_(self) -> str:
-        """Jupyter's display: the parameters with std errors, chi2 and p, the warnings, the residual histogram."""
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
-
-        from model.notebook import figure_img, html_table
-
-        rows = [[n, f"{v:.6g}", f"{e:.2g}"] for n, v, e in zip(self.names, self.values, self.std_errors, strict=True)]
-        fig = Figure(figsize=(4.5, 2.6), layout="tight")
-        FigureCanvasAgg(fig)
-        ax = fig.add_subplot()
-        r = self.residuals.reshape(-1)
-        ax.hist(np.clip(r[np.isfinite(r)], -5, 5), bins=31, range=(-5.0, 5.0), color="#0072B2")
-        ax.set(xlabel="(model − value) / std error, clipped at ±5", ylabel="count", title="residuals")
-        warns = "".join(f"<li>{escape(w)}</li>" for w in self.warnings)
-        return (f"<div><b>{escape(self.spec)}</b> ({escape(type(self.model).__name__)}): chi2/dof = "
-                f"{self.reduced_chi2:.3g}, p = {self.p_value:.3g}, {self.n_samples} samples"
-                + html_table(["parameter", "value", "std error"], rows)
-                + (f"<ul>{warns}</ul>" if warns else "") + figure_img(fig) + "</div>")  # fmt: skip
 
 
 def _coplanar(s: Samples) -> bool:
@@ -241,7 +132,56 @@ def fit(
             f"fit: loss {loss!r} (one of {LOSSES}), robust {robust!r} (one of {ROBUST}), starts {starts} >= 1, "
             f"lower_bounds {lower_bounds!r} (one of {LOWER_BOUNDS})"
         )
-    notes = list(samples.notes)
+    # Which samples enter: the ordinary ones above the horizon, and the saturated ones as lower bounds.
+    notes = list(samples.notes)  # what deserves less trust than it seems, in the order it was found
+    s, saturated = _usable(samples, lower_bounds, notes)
+    n, c = s.n, s.channels
+    labels = spec.labels(c)
+    _check_determined(spec, s, samples.n, len(labels), notes)
+    bound_notes = notes if lower_bounds == "constrain" else []  # excluded bounds' notes do not concern the fit
+    bounds = _bounds(s, samples.subset(saturated), bound_notes) if saturated.any() else None
+    constrain = lower_bounds == "constrain" and bounds is not None
+    n_bounds = bounds.n if constrain and bounds is not None else 0
+
+    # The solve, in the optimiser's coordinates, from several starts.
+    box = _Box.of(spec, c)
+    rng = np.random.default_rng(seed)
+    tries = _starts(spec, s, box, starts, rng)
+    # The ordinary samples come first in the rows, so the first n rows of any prediction are theirs.
+    rows = _join(s, bounds) if constrain and bounds is not None else s
+    best, agreeing, full = solve_staged(
+        lambda r: Problem(spec, r, loss, weighted, box.is_log), rows, tries, (box.lo, box.hi), robust, f_scale, rng
+    )
+    if not best.success:
+        notes.append(f"the optimiser stopped without converging: {best.message}")
+    ux: Array = best.x
+    x = full.native(ux)
+
+    # The model, its goodness of fit and uncertainties, and how far it falls short of the lower bounds.
+    model = _model(spec, spec.values(x, c), notes)
+    pred = full.rows.predict(spec, x)
+    resid = (pred[:n] - s.value) / s.std_error
+    chi2 = float(np.sum(resid**2))
+    dof = n * c - len(labels)
+    cov, null = _covariance(full, ux, x, box.is_log, n, c)
+    cov, err = _std_errors(cov, null, chi2, dof, labels, notes)
+    _note_at_bounds(ux, x, box, labels, notes)
+    bound_chi2 = 0.0
+    if bounds is not None:
+        pred_b = pred[n:] if constrain else Rows(bounds).predict(spec, x)
+        bound_chi2 = _shortfall(bounds, pred_b, constrain, notes)
+
+    if warn:
+        for note in notes:
+            warnings.warn(f"{spec.name}: {note}", FitWarning, stacklevel=2)
+    return FitResult(
+        spec.name, model, tuple(labels), x, err, cov, resid, chi2, dof, loss, robust, float(best.cost), n,
+        samples.n - n - n_bounds, starts, agreeing, s.std_error_assumed, tuple(notes), n_bounds, bound_chi2,
+    )  # fmt: skip
+
+
+def _usable(samples: Samples, lower_bounds: str, notes: list[str]) -> tuple[Samples, npt.NDArray[np.bool_]]:
+    """The ordinary samples above the horizon, and the mask of the saturated ones there (the lower bounds)."""
     up = (samples.wi[:, 2] > 0) & (samples.wo[:, 2] > 0)
     saturated = samples.lower_bound & up
     n_lower = int(saturated.sum())
@@ -249,14 +189,16 @@ def fit(
         notes.append(f"{n_lower} saturated (lower-bound) samples excluded from the fit")
     if (~up).any():
         notes.append(f"{int((~up).sum())} samples at or below the horizon excluded")
-    s = samples.subset(up & ~samples.lower_bound)
+    return samples.subset(up & ~samples.lower_bound), saturated
+
+
+def _check_determined(spec: FitSpec, s: Samples, n_given: int, p: int, notes: list[str]) -> None:
+    """Raise FitError where the samples cannot determine the ``p`` fitted numbers; note a one-plane sample set."""
     n, c = s.n, s.channels
-    labels = spec.labels(c)
-    p = len(labels)
     fields = [q.name for q in spec.params]
     if n < len(fields) or n * c <= p:
         raise FitError(
-            f"{spec.name}: {n} usable samples x {c} channels ({samples.n - n} excluded) cannot determine "
+            f"{spec.name}: {n} usable samples x {c} channels ({n_given - n} excluded) cannot determine "
             f"{p} parameters ({len(fields)} per channel: {', '.join(fields)}); need more than {p} "
             f"residuals and at least {len(fields)} samples"
         )
@@ -270,42 +212,51 @@ def fit(
             f"all {n} samples lie in one plane: out-of-plane behaviour is unconstrained by the data and "
             "rests on the model's isotropy"
         )
-    bounds = _bounds(s, samples.subset(saturated), notes if lower_bounds == "constrain" else []) if n_lower else None
-    constrain = lower_bounds == "constrain" and bounds is not None
-    n_bounds = bounds.n if constrain and bounds is not None else 0
 
-    sizes = spec.sizes(c)
-    lo = np.concatenate([np.full(k, q.to_internal(q.lo)) for q, k in zip(spec.params, sizes, strict=True)])
-    hi = np.concatenate([np.full(k, q.to_internal(q.hi)) for q, k in zip(spec.params, sizes, strict=True)])
-    is_log = np.concatenate([np.full(k, q.log) for q, k in zip(spec.params, sizes, strict=True)])
-    rng = np.random.default_rng(seed)
+
+@dataclass(frozen=True, eq=False)
+class _Box:
+    """The fitted numbers' bounds in the optimiser's coordinates (the log of log-scaled ones), and which are log."""
+
+    lo: Array
+    hi: Array
+    is_log: npt.NDArray[Any]  # booleans
+
+    @classmethod
+    def of(cls, spec: FitSpec, channels: int) -> _Box:
+        """The bounds of spec's parameters, each repeated over the channels it has a value for."""
+        sizes = spec.sizes(channels)
+        lo = np.concatenate([np.full(k, q.to_internal(q.lo)) for q, k in zip(spec.params, sizes, strict=True)])
+        hi = np.concatenate([np.full(k, q.to_internal(q.hi)) for q, k in zip(spec.params, sizes, strict=True)])
+        is_log = np.concatenate([np.full(k, q.log) for q, k in zip(spec.params, sizes, strict=True)])
+        return cls(lo, hi, is_log)
+
+
+def _starts(spec: FitSpec, s: Samples, box: _Box, starts: int, rng: np.random.Generator) -> list[Array]:
+    """The spec's initial guess, then starts - 1 points drawn uniformly just inside the box (optimiser coordinates)."""
     x0 = spec.initial(s)
-    inner = lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo)
-    tries = [np.where(is_log, np.log(np.where(is_log, x0, 1.0)), x0)] + [rng.uniform(*inner) for _ in range(starts - 1)]
-    # The ordinary samples come first in the rows, so the first n rows of any prediction are theirs.
-    rows = _join(s, bounds) if constrain and bounds is not None else s
-    best, agreeing, full = solve_staged(
-        lambda r: Problem(spec, r, loss, weighted, is_log), rows, tries, (lo, hi), robust, f_scale, rng
-    )
-    if not best.success:
-        notes.append(f"the optimiser stopped without converging: {best.message}")
-    ux: Array = best.x
-    x = full.native(ux)
+    inner = box.lo + 1e-6 * (box.hi - box.lo), box.hi - 1e-6 * (box.hi - box.lo)
+    first = np.where(box.is_log, np.log(np.where(box.is_log, x0, 1.0)), x0)
+    return [first] + [rng.uniform(*inner) for _ in range(starts - 1)]
 
-    vals = spec.values(x, c)
+
+def _model(spec: FitSpec, values: dict[str, Any], notes: list[str]) -> Model:
+    """Spec's model with these values; unvalidated, with a note, where the best fit breaks one of its rules."""
     try:
-        model = spec.build(vals)
+        return spec.build(values)
     except ParameterError as exc:
         notes.append(f"the best fit breaks a rule of the model ({exc}); the returned model is unvalidated")
-        model = spec.build(vals, validate=False)
-    pred = full.rows.predict(spec, x)
-    resid = (pred[:n] - s.value) / s.std_error
-    chi2 = float(np.sum(resid**2))
-    dof = n * c - p
+        return spec.build(values, validate=False)
 
-    # Covariance in native units: chain rule d/dnative = d/du / (dnative/du), column-normalised for the SVD.
-    # Only the ordinary samples' rows (the first n c): a lower bound is not a measurement, and an active one
-    # would otherwise count as one, at its value, and claim a precision a one-sided bound cannot give.
+
+def _covariance(
+    full: Problem, ux: Array, x: Array, is_log: npt.NDArray[Any], n: int, c: int
+) -> tuple[Array, npt.NDArray[np.bool_] | None]:
+    """The fitted numbers' covariance (native units) by the sandwich formula, from the ordinary samples' rows;
+    and which numbers the data do not constrain (None where the Jacobian has full rank)."""
+    # Chain rule d/dnative = d/du / (dnative/du), column-normalised for the SVD. Only the ordinary samples'
+    # rows (the first n c): a lower bound is not a measurement, and an active one would otherwise count as
+    # one, at its value, and claim a precision a one-sided bound cannot give.
     jn = jacobian(full.residuals, ux, full.groups, c)[: n * c]
     nu = full.nu[: n * c]
     jn /= np.where(is_log, x, 1.0)
@@ -323,6 +274,13 @@ def fit(
         jw = jn * nu[:, None]
         meat = jw.T @ jw
     cov = ainv @ meat @ ainv / np.outer(norms, norms)
+    return cov, None if keep.all() else np.abs(vt[~keep]).max(axis=0) > 0.1
+
+
+def _std_errors(
+    cov: Array, null: npt.NDArray[np.bool_] | None, chi2: float, dof: int, labels: list[str], notes: list[str]
+) -> tuple[Array, Array]:
+    """(covariance, std errors): scaled by the reduced chi2 where residuals exceed the noise; inf if unconstrained."""
     red = chi2 / dof
     if red > 1.0 + 3.0 * np.sqrt(2.0 / dof):
         cov *= red
@@ -331,35 +289,32 @@ def fit(
             "the model misses structure in the data or the std errors are underestimated"
         )
     err = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    if not keep.all():
-        null = np.abs(vt[~keep]).max(axis=0) > 0.1
+    if null is not None:
         err = np.where(null, np.inf, err)
         notes.append(f"the data do not constrain {', '.join(np.array(labels)[null])} (Jacobian rank deficient)")
-    span = hi - lo
-    at_bound = (ux - lo < 1e-6 * span) | (hi - ux < 1e-6 * span)
+    return cov, err
+
+
+def _note_at_bounds(ux: Array, x: Array, box: _Box, labels: list[str], notes: list[str]) -> None:
+    """Note the fitted numbers at (within 1e-6 of the span of) a bound: their std errors ignore it."""
+    span = box.hi - box.lo
+    at_bound = (ux - box.lo < 1e-6 * span) | (box.hi - ux < 1e-6 * span)
     if at_bound.any():
         names = ", ".join(f"{labels[i]} = {x[i]:.4g}" for i in np.flatnonzero(at_bound))
         notes.append(f"at a bound: {names}; their std errors assume the bound is not there")
 
-    bound_chi2 = 0.0
-    if bounds is not None:
-        pred_b = pred[n:] if constrain else Rows(bounds).predict(spec, x)
-        short = np.maximum((bounds.value - pred_b) / bounds.std_error, 0.0)
-        bound_chi2 = float(np.sum(short**2))
-        below = (short > BOUND_TOLERANCE).any(axis=1)
-        if below.any():
-            why = (
-                "even as constraints: the model cannot reach the saturated peak" if constrain else
-                "they were excluded (lower_bounds='exclude'); constraining the fit with them would lift it"
-            )  # fmt: skip
-            notes.append(
-                f"the fit lies more than {BOUND_TOLERANCE:g} std errors below {int(below.sum())} of {bounds.n} "
-                f"saturated lower bounds (by up to {short.max():.3g}): {why}"
-            )
-    if warn:
-        for note in notes:
-            warnings.warn(f"{spec.name}: {note}", FitWarning, stacklevel=2)
-    return FitResult(
-        spec.name, model, tuple(labels), x, err, cov, resid, chi2, dof, loss, robust, float(best.cost), n,
-        samples.n - n - n_bounds, starts, agreeing, s.std_error_assumed, tuple(notes), n_bounds, bound_chi2,
-    )  # fmt: skip
+
+def _shortfall(bounds: Samples, pred_b: Array, constrain: bool, notes: list[str]) -> float:
+    """chi2 of the model's shortfalls below the lower bounds (model ``pred_b``); a note names those far below."""
+    short = np.maximum((bounds.value - pred_b) / bounds.std_error, 0.0)
+    below = (short > BOUND_TOLERANCE).any(axis=1)
+    if below.any():
+        why = (
+            "even as constraints: the model cannot reach the saturated peak" if constrain else
+            "they were excluded (lower_bounds='exclude'); constraining the fit with them would lift it"
+        )  # fmt: skip
+        notes.append(
+            f"the fit lies more than {BOUND_TOLERANCE:g} std errors below {int(below.sum())} of {bounds.n} "
+            f"saturated lower bounds (by up to {short.max():.3g}): {why}"
+        )
+    return float(np.sum(short**2))

@@ -180,8 +180,42 @@ def split_words(line: str) -> list[tuple[str, float]]:
 
 
 def parse_block(line: str, modal: Modal, position: list[float], axes: str, jog: bool = False) -> Block:
-    """Validate a cleaned line against ``modal`` and the parser ``position`` (units); raises ``GcodeError``."""
-    words = split_words(line)
+    """Validate a cleaned line against ``modal`` and the parser ``position`` (units); raises ``GcodeError``.
+
+    The checks run in GRBL's order, so a line with several faults gets the error code GRBL gives it.
+    """
+    groups, values = _sort_words(split_words(line), axes)
+    if jog:
+        _check_jog(groups, values)
+    if values.get("N", 0.0) > MAX_LINE_NUMBER:
+        raise GcodeError(Status.GCODE_INVALID_LINE_NUMBER)
+    new, scale, feed = _next_modal(modal, groups, values, jog)
+
+    block = Block(modal=new, position=list(position))
+    nonmodal = groups.get("Gnonmodal")
+    if nonmodal == 4:
+        if "P" not in values:
+            raise GcodeError(Status.GCODE_VALUE_WORD_MISSING)
+        block.dwell_s = values.pop("P")
+    axis_words = {k: v for k, v in values.items() if k in axes}
+    motion = 1 if jog else new.motion
+    _check_motion(groups, values, axis_words, motion, nonmodal, feed)
+    if axis_words and motion in (0, 1):
+        target = _target(axis_words, position, axes, scale, absolute=nonmodal == 53 or not new.relative)
+        block.target = target
+        block.rapid = motion == 0
+        block.feed = feed
+        block.position = list(target)
+    if groups.get("Mstop") in (2, 30):
+        block.program_end = True
+        block.modal = replace(block.modal, motion=1, plane=17, relative=False, coord=54, spindle=5, coolant=9)
+    if jog:
+        block.modal = modal  # a jog line never changes the parser's modal state
+    return block
+
+
+def _sort_words(words: list[tuple[str, float]], axes: str) -> tuple[dict[str, int], dict[str, float]]:
+    """The line's G/M codes by modal group ("G" or "M" + group name) and its value words by letter."""
     groups: dict[str, int] = {}
     values: dict[str, float] = {}
     for letter, value in words:
@@ -205,16 +239,22 @@ def parse_block(line: str, modal: Modal, position: list[float], axes: str, jog: 
         if letter in "FNPST" and value < 0:
             raise GcodeError(Status.NEGATIVE_VALUE)
         values[letter] = value
+    return groups, values
 
-    if jog:
-        allowed = {"Gunits", "Gdistance", "Gnonmodal"}
-        if any(g not in allowed for g in groups) or groups.get("Gnonmodal", 53) != 53:
-            raise GcodeError(Status.INVALID_JOG_COMMAND)
-        if "F" not in values:
-            raise GcodeError(Status.GCODE_UNDEFINED_FEED_RATE)
-    if values.get("N", 0.0) > MAX_LINE_NUMBER:
-        raise GcodeError(Status.GCODE_INVALID_LINE_NUMBER)
 
+def _check_jog(groups: dict[str, int], values: dict[str, float]) -> None:
+    """A ``$J=`` line: only units, distance and G53, and a feed rate."""
+    allowed = {"Gunits", "Gdistance", "Gnonmodal"}
+    if any(g not in allowed for g in groups) or groups.get("Gnonmodal", 53) != 53:
+        raise GcodeError(Status.INVALID_JOG_COMMAND)
+    if "F" not in values:
+        raise GcodeError(Status.GCODE_UNDEFINED_FEED_RATE)
+
+
+def _next_modal(
+    modal: Modal, groups: dict[str, int], values: dict[str, float], jog: bool
+) -> tuple[Modal, float, float]:
+    """The modal state after the line, the units' scale to controller units, and the feed (units/min) it runs at."""
     new = modal
     if "Gunits" in groups:
         new = replace(new, inches=groups["Gunits"] == 20)
@@ -240,15 +280,15 @@ def parse_block(line: str, modal: Modal, position: list[float], axes: str, jog: 
         new = replace(new, coord=groups["Gcoord"])
     if "Gmotion" in groups:
         new = replace(new, motion=groups["Gmotion"])
+    return new, scale, feed
 
-    block = Block(modal=new, position=list(position))
-    nonmodal = groups.get("Gnonmodal")
-    if nonmodal == 4:
-        if "P" not in values:
-            raise GcodeError(Status.GCODE_VALUE_WORD_MISSING)
-        block.dwell_s = values.pop("P")
-    axis_words = {k: v for k, v in values.items() if k in axes}
-    motion = 1 if jog else new.motion
+
+def _check_motion(
+    groups: dict[str, int], values: dict[str, float], axis_words: dict[str, float], motion: int,
+    nonmodal: int | None, feed: float,
+) -> None:
+    """Raise for a motion the line cannot make: G53 outside G0/G1, axis words under G80, G1 without a feed,
+    or words nothing uses."""
     if nonmodal == 53 and motion not in (0, 1):
         raise GcodeError(Status.GCODE_G53_INVALID_MOTION_MODE)
     explicit_motion = "Gmotion" in groups
@@ -262,27 +302,22 @@ def parse_block(line: str, modal: Modal, position: list[float], axes: str, jog: 
     if leftover:
         raise GcodeError(Status.GCODE_UNUSED_WORDS)
 
-    if axis_words and motion in (0, 1):
-        target = list(position)
-        for letter, value in axis_words.items():
-            i = axes.index(letter)
-            v = value * scale
-            if nonmodal == 53 or not new.relative:
-                target[i] = v  # work offsets are all zero here, so work = machine coordinates
-            else:
-                target[i] = position[i] + v
-        if not all(math.isfinite(v) for v in target):
-            raise GcodeError(Status.GCODE_INVALID_TARGET)
-        block.target = target
-        block.rapid = motion == 0
-        block.feed = feed
-        block.position = list(target)
-    if groups.get("Mstop") in (2, 30):
-        block.program_end = True
-        block.modal = replace(block.modal, motion=1, plane=17, relative=False, coord=54, spindle=5, coolant=9)
-    if jog:
-        block.modal = modal  # a jog line never changes the parser's modal state
-    return block
+
+def _target(
+    axis_words: dict[str, float], position: list[float], axes: str, scale: float, *, absolute: bool
+) -> list[float]:
+    """Where the axis words move to (units): absolute, or relative to ``position``; raises if not finite."""
+    target = list(position)
+    for letter, value in axis_words.items():
+        i = axes.index(letter)
+        v = value * scale
+        if absolute:
+            target[i] = v  # work offsets are all zero here, so work = machine coordinates
+        else:
+            target[i] = position[i] + v
+    if not all(math.isfinite(v) for v in target):
+        raise GcodeError(Status.GCODE_INVALID_TARGET)
+    return target
 
 
 def format_modal(modal: Modal) -> str:
