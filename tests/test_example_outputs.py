@@ -1,4 +1,5 @@
-"""bench/example_outputs.py's normalisers take out exactly the keys, columns and text they list, nothing else.
+"""bench/example_outputs.py's normalisers (bench/_normalise.py) take out exactly the keys, columns and text they list,
+nothing else.
 
 The examples themselves are not run here (minutes); only the normalisation, on small made-up files.
 """
@@ -13,7 +14,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from bench.example_outputs import (
+from bench._normalise import (
     JSON_KEYS,
     PLACEHOLDER,
     Paths,
