@@ -72,15 +72,17 @@ def plan_exposure(
     max_frames: int = 64,
     max_total_s: float | None = None,
     bracket_ratio: float = 4.0,
+    shortest_s: float | None = None,
 ) -> ExposurePlan:
     """Fewest and shortest frames (seconds) reaching ``target_snr`` on the ROI mean without saturating the ROI.
 
-    ``level`` is one ROI level in counts/s, or one per colour channel (the brightest channel limits the
-    exposure, the dimmest sets the SNR). ``pixel_snr_target`` asks in addition for that per-pixel SNR over
-    the ROI's levels from ``dark_dn_per_s`` to the peak (it may add a bracket of longer frames). ``safety``
-    is the fraction of saturation the ROI peak may reach in the frames that must not clip. Raises
-    ExposureError if the peak saturates even at the shortest exposure; an unreachable target returns a plan
-    with ``reached=False``.
+    ``level`` is one ROI level in counts/s, or one per colour channel (the brightest channel limits the exposure,
+    the dimmest sets the SNR). ``pixel_snr_target`` asks in addition for that per-pixel SNR over the ROI's levels
+    from ``dark_dn_per_s`` to the peak (it may add a bracket of longer frames). ``safety`` is the fraction of
+    saturation the ROI peak may reach in the frames that must not clip. Raises ExposureError if the peak saturates
+    even at the shortest exposure; an unreachable target returns a plan with ``reached=False``. ``shortest_s``: no
+    frame shorter (s), up to the longest the peak allows (a large ROI's mean reaches its target in frames too short
+    to detect its pixels: ``snr.detection_exposure_s``).
     """
     cam = camera or CameraTiming()
     levels = [level] if isinstance(level, RoiLevel) else list(level)
@@ -103,6 +105,7 @@ def plan_exposure(
                 f"plan_exposure: pixel_snr_target needs the ROI's dark level, but RoiLevel {missing} has "
                 "dark_dn_per_s = None"
             )
+    floor_s = 0.0 if shortest_s is None else _finite("plan_exposure", "shortest_s", shortest_s)
     budget = math.inf if max_total_s is None else _finite("plan_exposure", "max_total_s", max_total_s, lo_open=True)
     gain = cam.gain
     sat = noise.saturation_dn(gain)
@@ -137,6 +140,9 @@ def plan_exposure(
 
     t_top, n_cap, limits = _longest_frame(levels, noise, cam, safety, dark_frames, max_frames, budget)
     frames, reached, notes = _repeat_frames(snr_of, target, t_top, n_cap, max_frames, cam, limits, guess, reaches)
+    if reached and max(frames) < min(floor_s, t_top):
+        frames = {min(cam.ceil(floor_s) or t_top, t_top): sum(frames.values())}
+        notes.append(f"frames lengthened to {max(frames):.4g} s: shortest_s = {floor_s:.4g} s")
 
     expected_pixel: float | None = None
     if pixel_snr_target is not None or all(lv.dark_dn_per_s is not None for lv in levels):
