@@ -462,12 +462,7 @@ def prepare_workspace(work: Path) -> None:
                 if line.startswith(f"# {key} = "):
                     line = line[2:]
             lines.append(line)
-        path = work / target
-        path.write_text("".join(lines))
-        st = (work / source).stat()
-        # The source's time: written now, the file would be newer than the calibration made next, which gonio
-        # warns about naming both times (the file "changed after its geometry calibration").
-        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+        (work / target).write_text("".join(lines))
 
 
 def subprocess_env(site: Path) -> dict[str, str]:
