@@ -12,13 +12,9 @@ byte:
   ``geometry_calibration.json`` ``created_utc`` (when it was made); a batch's or study's ``.tasks/*.json``
   ``worker`` (host:pid of the Dask worker), ``started_utc``, ``finished_utc``, ``created_utc`` (the run's),
   ``fingerprint`` (a digest of the inputs' modification times, which earlier steps set) and the task's timings
-  ``fit_s``, ``candidates_s``, ``report_s``, ``wall_s``, ``cpu_s``; an export's ``material.json``
-  ``facts.mitsuba_tabulated.error`` and ``facts.mitsuba_stock.error``: Mitsuba's ``measured`` plugin reading
-  the same ``material.bsdf`` gives values differing in their last bits from one ``gonio analyze`` process to
-  the next (``rms_rel`` 0.01560573123485755 or 0.015605731215887883 for the README run: once in two runs of this
-  module, once in four analyses of one run; never in a process that only tabulates and evaluates), so the
-  full-precision numbers are process dependent. They are also printed to 4 digits in the export's README.md,
-  its XML and the report, which are kept (the projection's error, ``facts.mitsuba_projection.error``, too).
+  ``fit_s``, ``candidates_s``, ``report_s``, ``wall_s``, ``cpu_s``. (An export's ``material.json`` is digested as
+  it is: the errors Mitsuba's ``measured`` plugin shows, whose last bits vary from one ``gonio analyze`` process to
+  the next, are written to 4 significant digits, ``model.mitsuba.projection.rounded_error``.)
 - CSV columns (``CSV_COLUMNS``): ``samples.csv`` ``utc`` (each point's time), in every row.
 - Parquet columns (``PARQUET_COLUMNS``): ``samples.parquet`` ``utc``; ``catalogue.parquet`` ``created_utc``,
   ``wall_s``, ``cpu_s``, ``fit_s``, ``worker``, ``finished_utc``, ``fingerprint`` (as in the task records). A
@@ -62,8 +58,6 @@ JSON_KEYS: dict[str, tuple[str, ...]] = {
     "lock": ("pid", "host", "since"),
     "camera_calibration.json": ("created_utc",),
     "geometry_calibration.json": ("created_utc",),
-    # Mitsuba's evaluation of the tabulated form differs in its last bits from one gonio analyze process to the next.
-    "export/material.json": ("facts.mitsuba_tabulated.error", "facts.mitsuba_stock.error"),
     ".tasks/*.json": ("worker", "started_utc", "finished_utc", "created_utc", "fingerprint",
                       "fit_s", "candidates_s", "report_s", "wall_s", "cpu_s"),
 }  # fmt: skip
