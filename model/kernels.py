@@ -96,7 +96,9 @@ def _specular(ci: float, co: float, ch: float, kc: Consts, mp: Consts, dist: int
     else:
         c4 = c2 * c2
         ca = c2 * a2
-        d = math.exp(-s2 / (tiny if ca < tiny else ca)) / (pi * a2 * (tiny if c4 < tiny else c4))
+        e = math.exp(-s2 / (tiny if ca < tiny else ca))
+        # As model.microfacet.beckmann_d: where the exponential has underflowed the denominator may have too.
+        d = e / (pi * a2 * (tiny if c4 < tiny else c4)) if e > zero else zero
     d = d if ch > zero else zero
     if mask == 0:
         g = one / (one + _lambda(ci, kc, mp, dist)) * (one / (one + _lambda(co, kc, mp, dist)))

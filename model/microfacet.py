@@ -86,7 +86,11 @@ def beckmann_d(
     s2, c2 = _sin2_cos2(c) if sin2_cos2 is None else sin2_cos2
     tiny = np.finfo(c.dtype).tiny
     c4 = np.maximum(c2 * c2, tiny)
-    d = np.exp(-s2 / np.maximum(c2 * a2, tiny)) / (math.pi * a2 * c4)
+    e = np.exp(-s2 / np.maximum(c2 * a2, tiny))
+    # At grazing half vectors with a tiny alpha the denominator underflows (float32: alpha^2 cos^4 < 1e-45)
+    # where the exponential already has: the density there is 0, not 0 / 0.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(e > 0, e / (math.pi * a2 * c4), 0.0)
     return np.where(c > 0, d, 0.0).astype(c.dtype)
 
 
