@@ -365,6 +365,18 @@ class Capture(Strict):
     first_exposure_s: Seconds = 0.01
     save_images: bool = False
     include_cosine: bool = False
+    #: "point": each point one reading of the camera's ROI; "image": every tile_px x tile_px tile of the
+    #: sample's whole footprint a sample of its own (rig.run.measuring.image_capture).
+    mode: Literal["point", "image"] = "point"
+    #: Image mode's tile side in pixels (None: rig.run.measuring.tiles.DEFAULT_TILE_PX).
+    tile_px: Annotated[int, Field(ge=1, le=512)] | None = None
+
+    @model_validator(mode="after")
+    def _tiles_in_image_mode(self) -> Capture:
+        if self.tile_px is not None and self.mode != "image":
+            raise ValueError(f"tile_px = {self.tile_px} has no meaning in point mode (each point reads the camera's "
+                             'ROI): set mode = "image" to read the sample in tiles, or leave tile_px out')  # fmt: skip
+        return self
 
 
 class SweepFile(Strict):
