@@ -67,6 +67,10 @@ class SampleShape:
         object.__setattr__(self, "radius_m", float(r))
 
 
+#: The flat sample, every rig's default.
+FLAT = SampleShape()
+
+
 @dataclass(frozen=True)
 class SurfaceHits:
     """Where rays meet the sample: world points (m), unit outward normals and shading tangents, and which hit."""
