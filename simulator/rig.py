@@ -36,6 +36,7 @@ from rig.instrument.clock import Clock, ManualClock, ScaledClock
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints, world_pose
 from rig.instrument.links.dynamixel import DynamixelLink, DynamixelOptions
+from rig.instrument.sample_surface import FLAT, SampleShape
 from rig.run.config.files import default_axes
 from simulator.camera.pixels import PixelResponse
 from simulator.camera.simulated import CameraOptics, SensorPatch, SimulatedCamera
@@ -103,6 +104,9 @@ class SimRigSpec:
         The sensor's hidden vignetting, pixel response non-uniformity and non-linearity.
     dng_dir:
         Where "dng" frames are written and kept; None: a temporary folder, each file removed once read.
+    sample_shape:
+        The sample's surface (``[sample]``): flat, or a sphere or cylinder rendered as such. The reference tile
+        and the calibration board swapped in for it are flat whatever it is.
     """
 
     geometry: RigGeometry = field(default_factory=RigGeometry)
@@ -127,6 +131,7 @@ class SimRigSpec:
     camera_output: Literal["linear", "raw", "dng"] = "linear"
     response: PixelResponse = field(default_factory=PixelResponse)
     dng_dir: Path | None = None
+    sample_shape: SampleShape = FLAT
 
     def resolved_axes(self) -> tuple[Axis, ...]:
         """The axes, defaulted from the geometry, checked to cover every joint of the layout."""
@@ -150,7 +155,8 @@ class SimulatedRig:
         self.axes = self.spec.resolved_axes()
         self.clock: Clock = ManualClock() if self.spec.time_scale is None else ScaledClock(self.spec.time_scale)
         self.material: MitsubaMaterial = to_mitsuba(self.spec.material)
-        self.renderer = RadianceRenderer(self.spec.geometry, self.spec.light, self.spec.camera)
+        self.renderer = RadianceRenderer(self.spec.geometry, self.spec.light, self.spec.camera,
+                                         shape=self.spec.sample_shape)  # fmt: skip
         self.bus: VirtualDynamixelBus | None = None
         self.camera: SimulatedCamera | None = None
         self.renders = 0
@@ -159,6 +165,7 @@ class SimulatedRig:
         self._showing: Hashable = self.spec.material
         self._reading: int | None = None
         self._shown: MitsubaMaterial | dict[str, Any] = self.material
+        self._surface: SampleShape = self.spec.sample_shape  # what is in view: the sample's, or a flat swap-in
         self._reference_material = to_mitsuba(Lambert(self.spec.reference_albedo))
         self.flat_source = SimulatedFlatSource(self.spec.camera.resolution, self.spec.noise, self.spec.optics)
         self._dng_tmp: tempfile.TemporaryDirectory[str] | None = None
@@ -258,13 +265,16 @@ class SimulatedRig:
         self._reading = reading if reference else None
         if reference:
             self._showing, self._shown = Lambert(self.spec.reference_albedo), self._reference_material
+            self._surface = FLAT
         else:
             self._showing, self._shown = self.spec.material, self.material
+            self._surface = self.spec.sample_shape
 
     def show_material(self, key: Hashable, material: dict[str, Any]) -> None:
         """Put any Mitsuba material in view in place of the sample (``key`` names it for caches and noise)."""
         self._reading = None
         self._showing, self._shown = key, material
+        self._surface = FLAT  # a board or tile swapped in for the sample is flat
 
     def state_key(self) -> tuple[object, ...]:
         """What the camera's noise stream is drawn for: where the joints stand, what is in view, which reading."""
@@ -306,7 +316,8 @@ class SimulatedRig:
             crop = self.renderer.roi(world_pose(self.spec.geometry, joints))
         self.renders += 1
         # The render's own sampling noise is part of each rig's noise: seeded like the sensor's.
-        image = self.renderer.render(true, self._shown, crop=crop, key=repr(self._showing), seed=self.spec.seed)
+        image = self.renderer.render(true, self._shown, crop=crop, key=repr(self._showing), seed=self.spec.seed,
+                                     shape=self._surface)  # fmt: skip
         factor = self.lamp_factor()
         return np.asarray(image, dtype=np.float64) * factor if factor != 1.0 else np.asarray(image, dtype=np.float64)
 

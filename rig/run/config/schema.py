@@ -8,7 +8,8 @@ the file, the key, the value and what was expected.
 Rig file tables: ``[geometry]`` (and ``[geometry.limits]``), ``[link]``, ``[axes.<joint>]``, ``[camera]``
 (``[camera.noise]``, ``[camera.options]``; in ``rig.run.config.camera``, which says where the keys each camera
 backend reads are written), ``[reference]``, ``[simulation]`` (``[simulation.material]``,
-``[simulation.sensor]``, ``[simulation.misalignment]``; the simulator reads them through this validation).
+``[simulation.sensor]``, ``[simulation.misalignment]``; the simulator reads them through this validation),
+``[sample]`` (the sample's shape).
 Sweep file tables: ``[sweep]`` and ``[capture]``. Both files may have ``[metadata]`` (``sample``, ``operator``,
 ``notes`` and free keys), which a run carries into its manifest, its tables and the report. See
 examples/*.toml for annotated files.
@@ -23,6 +24,7 @@ from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from rig.run import registry
 from rig.run.config.camera import Camera
+from rig.run.config.sample import Sample
 from rig.run.config.strict import (
     Channels,
     Deg90,
@@ -302,6 +304,7 @@ class RigFile(Strict):
     camera: Camera = Field(default_factory=Camera)
     reference: Reference = Reference()
     simulation: Simulation = Simulation()
+    sample: Sample = Sample()
 
 
 #: The most points a sweep may expand to: far beyond any real sweep (a dense grid of 10^4 points runs for days),
