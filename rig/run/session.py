@@ -79,7 +79,9 @@ def _image_settings(rig: RigConfig, sweep: SweepConfig) -> ImageSettings | None:
     cap = sweep.file.capture
     if cap.mode != "image":
         return None
-    return ImageSettings(tile_px=cap.tile_px or DEFAULT_TILE_PX, resolution=rig.file.camera.resolution)
+    return ImageSettings(
+        tile_px=cap.tile_px or DEFAULT_TILE_PX, resolution=rig.file.camera.resolution, shape=rig.sample_shape
+    )
 
 
 def reference_settings(rig: RigConfig) -> ReferenceSettings | None:

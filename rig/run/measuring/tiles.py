@@ -65,7 +65,8 @@ class ImageSettings:
 @dataclass(frozen=True)
 class TileGeometry:
     """The tiles that see the sample at one pose: sensor window (pixels), and per tile (T of them) its box in
-    the window, number, mean angles (deg), light distance (m), footprint covariances (T, 4, 4)."""
+    the window, number, mean angles (deg), effective light distance (m: the footprint's mean irradiance at the
+    mean direction), footprint covariances (T, 4, 4)."""
 
     window: Box
     boxes: tuple[Box, ...]
@@ -146,7 +147,11 @@ def tile_geometry(geometry: RigGeometry, pose: RigPose, image: ImageSettings) ->
         boxes.append((j * k, i * k, (j + 1) * k, (i + 1) * k))
         numbers.append((r0 + i) * cols + (c0 + j))
         angles.append(mean)
-        distances.append(float(np.mean(dist[i, j])))
+        # The tile reads the mean of cos(theta_i) / d^2 over its footprint, not its value at the mean direction
+        # (on a curved sample the two differ by far more than the noise): the distance recorded is the one that
+        # gives that mean irradiance at the mean direction, so calibration divides by what the tile really saw.
+        irradiance = float(np.mean(wi[:, 2] / np.asarray(dist[i, j], dtype=np.float64) ** 2))
+        distances.append(math.sqrt(float(mean_wi[2]) / irradiance))
         cov_a.append(delta.T @ delta / len(delta))
         cov_t.append(tangent.T @ tangent / len(tangent))
     return TileGeometry(
