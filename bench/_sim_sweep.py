@@ -28,7 +28,7 @@ import numpy.typing as npt
 from matplotlib.ticker import NullLocator
 
 import model as m
-from acquisition.exposure.plan import fixed_bracket
+from acquisition.exposure.bracket import fixed_bracket
 from acquisition.hdr.merge import merge_linear
 from acquisition.roi import reduce_roi
 from bench._common import save_figure

@@ -28,7 +28,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import numpy.typing as npt
 
-from acquisition.exposure.plan import evaluate_plan, fixed_bracket, plan_exposure
+from acquisition.exposure.bracket import fixed_bracket
+from acquisition.exposure.plan import evaluate_plan, plan_exposure
 from acquisition.exposure.snr import roi_snr
 from acquisition.exposure.spec import CameraTiming, ExposurePlan, RoiLevel
 from acquisition.noise import SensorNoise

@@ -36,7 +36,7 @@ import numba
 import numpy as np
 
 import model as m
-from acquisition.exposure.plan import fixed_bracket
+from acquisition.exposure.bracket import fixed_bracket
 from acquisition.hdr.merge import merge_linear
 from acquisition.noise import SensorNoise
 from acquisition.roi import reduce_roi

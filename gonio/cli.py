@@ -12,6 +12,7 @@ from gonio.cli_analyze import add_analyze_parser
 from gonio.cli_batch import add_batch_parser
 from gonio.cli_calibrate import add_calibrate_parser
 from gonio.cli_errors import EXIT_CODES_HELP, GonioParser, plain_warnings, quiet_broken_pipe, report, stdout_closed
+from gonio.cli_options import add_command
 from gonio.cli_run import EXIT_OK, add_run_parsers
 from gonio.cli_servo import add_servo_parser
 from gonio.cli_sim import add_sim_parser
@@ -28,6 +29,13 @@ class _Version(argparse.Action):
 
 
 def _models(args: argparse.Namespace) -> int:
+    """plot in-plane BRDF slices of a few materials and check their physics
+
+    Writes brdf_slices.png and brdf_slices.csv (f_r in 1/sr) and prints each material's reciprocity, energy and
+    finiteness checks.
+
+    Example: gonio models --out out/models
+    """
     from gonio.models_demo import check_table, write_slices
 
     png, table = write_slices(Path(args.out))
@@ -50,15 +58,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = cast("argparse._SubParsersAction[argparse.ArgumentParser]",
                parser.add_subparsers(dest="command", required=True, metavar="COMMAND"))  # fmt: skip
     add_run_parsers(sub)
-    models = sub.add_parser(
-        "models",
-        help="plot in-plane BRDF slices of a few materials and check their physics",
-        description="Writes brdf_slices.png and brdf_slices.csv (f_r in 1/sr) and prints each "
-        "material's reciprocity, energy and finiteness checks.",
-        epilog="Example: gonio models --out out/models",
-    )
+    models = add_command(sub, "models", _models)
     models.add_argument("--out", default="out/models", help="output directory (default: out/models)")
-    models.set_defaults(func=_models)
     add_analyze_parser(sub)
     add_batch_parser(sub)
     add_adaptive_parser(sub)

@@ -47,6 +47,16 @@ def _check_options(args: argparse.Namespace) -> None:
 
 
 def _adaptive(args: argparse.Namespace) -> int:
+    """measure where the current fit is least certain, round by round
+
+    An adaptive sweep: a space-filling first round, then rounds chosen from reachable candidates to lower the fitted
+    BRDF's expected error the most (first order, from the fit's Jacobian). Each round is an ordinary run in
+    OUT/round-NN; OUT/samples.csv holds every round's rows and OUT/adaptive.json the settings and fits. An interrupted
+    sweep continues with --resume OUT (or gonio resume OUT); gonio analyze OUT analyses every round together.
+
+    Example: gonio adaptive --rig examples/rig_simulated.toml --out runs/gold-adaptive --model ggx_conductor
+    --budget 100
+    """
     from tqdm.auto import tqdm
 
     from analysis.ladder import parse_models
@@ -91,16 +101,7 @@ def _adaptive(args: argparse.Namespace) -> int:
 
 def add_adaptive_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``gonio adaptive``."""
-    p = add_command(
-        sub, "adaptive", _adaptive, help="measure where the current fit is least certain, round by round",
-        description="An adaptive sweep: a space-filling first round, then rounds chosen from reachable "
-        "candidates to lower the fitted BRDF's expected error the most (first order, from the fit's "
-        "Jacobian). Each round is an ordinary run in OUT/round-NN; OUT/samples.csv holds every round's rows "
-        "and OUT/adaptive.json the settings and fits. An interrupted sweep continues with --resume OUT (or "
-        "gonio resume OUT); gonio analyze OUT analyses every round together.",
-        epilog="Example: gonio adaptive --rig examples/rig_simulated.toml --out runs/gold-adaptive "
-        "--model ggx_conductor --budget 100",
-    )  # fmt: skip
+    p = add_command(sub, "adaptive", _adaptive)
     add_rig_option(p)
     p.add_argument("--out", help="directory to create (must not exist or be empty)")
     p.add_argument("--resume", metavar="DIR", help="continue the interrupted adaptive sweep in DIR with the rig, "

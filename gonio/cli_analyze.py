@@ -82,6 +82,16 @@ def _export_modules() -> None:
 
 
 def _analyze(args: argparse.Namespace) -> int:
+    """fit models to a run or a MERL file and write an HTML report with figures
+
+    Load a run directory (finished, or stopped: then analysed as far as it got, with a warning) or a MERL .binary file
+    (random bins, std errors assumed), fit a ladder of models from Lambert upward, choose the simplest the data support
+    (BIC) and write DIR/index.html, DIR/fit.json and DIR/figures (in-plane slices, polar lobes, residual maps, coverage
+    of the BRDF domain). Exit codes: 0 done, 2 bad input.
+
+    Example: gonio analyze runs/gold --models lambert,lambert_ggx,ggx_conductor (writes runs/gold/analysis/index.html);
+    gonio analyze gold-metallic-paint.binary --samples 20000
+    """
     from model.runtime import CollectorPause, Standby
 
     # The garbage collector is paused while this process and the standbys import: an import is many objects that
@@ -138,15 +148,7 @@ def _analyze_with(args: argparse.Namespace, standby: Standby | None, exporter: S
 
 def add_analyze_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``gonio analyze``."""
-    p = add_command(
-        sub, "analyze", _analyze, help="fit models to a run or a MERL file and write an HTML report with figures",
-        description="Load a run directory (finished, or stopped: then analysed as far as it got, with a warning) or a "
-        "MERL .binary file (random bins, std errors assumed), fit a ladder of models from Lambert upward, choose the "
-        "simplest the data support (BIC) and write DIR/index.html, DIR/fit.json and DIR/figures (in-plane slices, "
-        "polar lobes, residual maps, coverage of the BRDF domain). Exit codes: 0 done, 2 bad input.",
-        epilog="Example: gonio analyze runs/gold --models lambert,lambert_ggx,ggx_conductor  (writes "
-        "runs/gold/analysis/index.html); gonio analyze gold-metallic-paint.binary --samples 20000",
-    )  # fmt: skip
+    p = add_command(sub, "analyze", _analyze)
     p.add_argument("source", help="run directory, adaptive sweep directory, samples.csv / samples.parquet table, "
                    "or MERL .binary file")
     p.add_argument("--out", help="report directory (default: RUN/analysis, or <name>-analysis beside a MERL file)")

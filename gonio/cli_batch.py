@@ -40,6 +40,17 @@ def _cluster(args: argparse.Namespace) -> ClusterSettings:
 
 
 def _batch_analyze(args: argparse.Namespace) -> int:
+    """fit, report and export every input as gonio analyze would, and catalogue them
+
+    Analyse each run directory or MERL .binary file as one task: OUT/<name> holds exactly what `gonio analyze INPUT
+    --out OUT/<name>` writes (the same bytes for the same inputs and seed), OUT/catalogue.parquet one row per input
+    (chosen model, parameters and errors, goodness of fit, the run's metadata, the paths of its outputs; failed inputs
+    with their error). --samples applies to MERL inputs. Exit codes: 0 all done, 2 bad input or any input failed, 130
+    interrupted.
+
+    Example: gonio batch analyze runs/* library/*.binary --out batch/2024-06 --models lambert,lambert_ggx,ggx_conductor;
+    again after a stop, it does only what is left
+    """
     from analysis.batch.analyze_batch import batch_analyze
     from analysis.batch.inputs import AnalyzeSettings
 
@@ -56,6 +67,19 @@ def _batch_analyze(args: argparse.Namespace) -> int:
 
 
 def _batch_study(args: argparse.Namespace) -> int:
+    """run a simulation study (designs x materials x seeds) as tasks, and tabulate and plot it
+
+    Without --rig/--sweep: the study of bench/sweep_tradeoff (grids, Rusinkiewicz grids and the adaptive sweep at three
+    SNRs on a rough metal, a glossy plastic and a matte sample). With them: every sweep file on every rig file
+    (simulated rigs), each with --seeds simulator seeds, fitted with the --models ladder and scored against the rig's
+    true material. Each (design, material, seed) is one task; OUT gets study.md and study.txt (a table per material:
+    captures, rig time, BRDF error and its ratio to the densest design, shape error, chi2/dof), study.png and
+    outcomes.parquet. Exit codes: 0 done, 2 bad input or a failed cell, 130 interrupted (the same command again runs
+    what is left).
+
+    Examples: gonio batch study --out studies/tradeoff --seeds 5; gonio batch study --rig rigs/velvet.toml --sweep
+    sweeps/grid.toml sweeps/sparse.toml --seeds 3 --out studies/velvet
+    """
     from analysis.batch.study import file_cells, run_study, tradeoff_cells
     from analysis.batch.study_report import text_report
     from analysis.batch.tradeoff import KEYS
@@ -100,35 +124,13 @@ def add_batch_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
         "started again skips what is done.",
     )  # fmt: skip
     jobs = batch.add_subparsers(dest="batch_command", required=True, metavar="JOB")
-    p = add_command(
-        jobs, "analyze", _batch_analyze,
-        help="fit, report and export every input as gonio analyze would, and catalogue them",
-        description="Analyse each run directory or MERL .binary file as one task: OUT/<name> holds exactly what "
-        "`gonio analyze INPUT --out OUT/<name>` writes (the same bytes for the same inputs and seed), "
-        "OUT/catalogue.parquet one row per input (chosen model, parameters and errors, goodness of fit, the run's "
-        "metadata, the paths of its outputs; failed inputs with their error). --samples applies to MERL inputs. "
-        "Exit codes: 0 all done, 2 bad input or any input failed, 130 interrupted.",
-        epilog="Example: gonio batch analyze runs/* library/*.binary --out batch/2024-06 --models "
-        "lambert,lambert_ggx,ggx_conductor; again after a stop, it does only what is left",
-    )  # fmt: skip
+    p = add_command(jobs, "analyze", _batch_analyze)
     p.add_argument("sources", nargs="+", metavar="RUN_OR_MERL", help="run directories and MERL .binary files")
     p.add_argument("--out", required=True, help="batch directory (one directory per input, catalogue.parquet)")
     add_fit_options(p)
     _add_cluster_options(p)
 
-    st = add_command(
-        jobs, "study", _batch_study,
-        help="run a simulation study (designs x materials x seeds) as tasks, and tabulate and plot it",
-        description="Without --rig/--sweep: the study of bench/sweep_tradeoff (grids, Rusinkiewicz grids and the "
-        "adaptive sweep at three SNRs on a rough metal, a glossy plastic and a matte sample). With them: every sweep "
-        "file on every rig file (simulated rigs), each with --seeds simulator seeds, fitted with the --models ladder "
-        "and scored against the rig's true material. Each (design, material, seed) is one task; OUT gets study.md and "
-        "study.txt (a table per material: captures, rig time, BRDF error and its ratio to the densest design, shape "
-        "error, chi2/dof), study.png and outcomes.parquet. Exit codes: 0 done, 2 bad input or a failed cell, "
-        "130 interrupted (the same command again runs what is left).",
-        epilog="Examples: gonio batch study --out studies/tradeoff --seeds 5; gonio batch study --rig rigs/velvet.toml "
-        "--sweep sweeps/grid.toml sweeps/sparse.toml --seeds 3 --out studies/velvet",
-    )  # fmt: skip
+    st = add_command(jobs, "study", _batch_study)
     st.add_argument("--out", required=True, help="study directory (tables, figure, outcomes.parquet, task records)")
     st.add_argument("--rig", nargs="+", metavar="RIG", help="simulated rig files, one material each")
     st.add_argument("--sweep", nargs="+", metavar="SWEEP", help="sweep files, one design each")

@@ -25,6 +25,16 @@ from gonio.cli_run import EXIT_BAD_INPUT, EXIT_CAMERA, EXIT_HARDWARE, EXIT_OK
 
 
 def _camera(args: argparse.Namespace) -> int:
+    """photon transfer and flat field of the rig's camera: camera_calibration.json
+
+    Shows the camera a uniform light (on a real rig the operator is asked to place an integrating sphere or a diffuser,
+    and later to cap the lens), takes flat pairs at equally spaced exposures up to saturation with dark pairs
+    (EMVA 1288) and a flat-field series, and fits gain (e-/DN), read noise, dark current, black level, full well and
+    linearity with standard errors. Writes camera_calibration.json, flat_field.npz and photon_transfer.png; a rig file
+    uses them as [camera] calibration and flat_field.
+
+    Example: gonio calibrate camera --rig examples/rig_simulated_raw.toml --out calib/
+    """
     from acquisition.cameras import CameraError
     from acquisition.exposure.spec import CameraTiming
     from acquisition.photon_transfer import PhotonTransferError
@@ -94,6 +104,16 @@ def geometry_options(args: argparse.Namespace) -> None:
 
 
 def _geometry(args: argparse.Namespace) -> int:
+    """joint zeros, sample tilt and offset from a ChArUco board: geometry_calibration.json
+
+    Mounts a glossy ChArUco board on the stage (on a real rig the operator is asked to), captures HDR whole frames at
+    planned poses (a round seeing the board from many directions, then mirror poses that show the lamp's highlight in
+    the board's coat), and fits the joints' zero offsets, the sample's tilt on the stage and its offset from the arms'
+    axis by least squares, with standard errors and correlations. Writes geometry_calibration.json; a rig file applies
+    it with [geometry] calibration = "...".
+
+    Example: gonio calibrate geometry --rig examples/rig_simulated.toml --out calib/
+    """
     from acquisition.board import BoardError, ChArUcoBoard
     from rig.alignment.fit import CalibrationError
     from rig.alignment.poses import PoseError
@@ -141,31 +161,14 @@ def add_calibrate_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser
     cal = sub.add_parser("calibrate", help="calibrate the instrument (camera: photon transfer; geometry: alignment)",
                          description="Calibrations of the instrument, one subcommand each.")  # fmt: skip
     group = cal.add_subparsers(dest="calibration", required=True, metavar="WHAT")
-    camera = add_command(
-        group, "camera", _camera, help="photon transfer and flat field of the rig's camera: camera_calibration.json",
-        description="Shows the camera a uniform light (on a real rig the operator is asked to place an integrating "
-        "sphere or a diffuser, and later to cap the lens), takes flat pairs at equally spaced exposures up to "
-        "saturation with dark pairs (EMVA 1288) and a flat-field series, and fits gain (e-/DN), read noise, dark "
-        "current, black level, full well and linearity with standard errors. Writes camera_calibration.json, "
-        "flat_field.npz and photon_transfer.png; a rig file uses them as [camera] calibration and flat_field.",
-        epilog="Example: gonio calibrate camera --rig examples/rig_simulated_raw.toml --out calib/",
-    )  # fmt: skip
+    camera = add_command(group, "camera", _camera)
     _add_rig_and_out(camera, "camera_calibration.json and the rest")
     camera.add_argument("--steps", type=int, default=32,
                         help="exposures of the photon-transfer series, two flats and two darks each (default 32)")
     camera.add_argument("--flat-frames", type=int, default=16,
                         help="frames of the flat-field series; 0 for none (default 16)")  # fmt: skip
     add_quiet_option(camera, "no progress messages")
-    geometry = add_command(
-        group, "geometry", _geometry,
-        help="joint zeros, sample tilt and offset from a ChArUco board: geometry_calibration.json",
-        description="Mounts a glossy ChArUco board on the stage (on a real rig the operator is asked to), captures "
-        "HDR whole frames at planned poses (a round seeing the board from many directions, then mirror poses that "
-        "show the lamp's highlight in the board's coat), and fits the joints' zero offsets, the sample's tilt on "
-        "the stage and its offset from the arms' axis by least squares, with standard errors and correlations. "
-        "Writes geometry_calibration.json; a rig file applies it with [geometry] calibration = \"...\".",
-        epilog="Example: gonio calibrate geometry --rig examples/rig_simulated.toml --out calib/",
-    )  # fmt: skip
+    geometry = add_command(group, "geometry", _geometry)
     _add_rig_and_out(geometry, "geometry_calibration.json")
     geometry.add_argument("--captures", type=int, default=30,
                           help="captures: half see the board, half the lamp's mirror (default 30; with 24 a "

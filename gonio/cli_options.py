@@ -1,25 +1,43 @@
 """What several gonio commands declare alike, said once: registering a subcommand, --rig, --quiet, a count.
 
 Each command group's module (gonio.cli_run, cli_sim, ...) builds its parsers from these, so an option that
-means the same in every command also reads the same in every --help, and a rig file is loaded one way.
+means the same in every command also reads the same in every --help, and a rig file is loaded one way. A
+command's own texts (its line in the list, its description, its example) are its handler's docstring, beside
+what the handler does.
 """
 
 from __future__ import annotations
 
 import argparse
+import inspect
+import re
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from rig.run.config.files import RigConfig
 
+
 def add_command(sub: argparse._SubParsersAction[argparse.ArgumentParser], name: str,
-                func: Callable[[argparse.Namespace], int], *, help: str, description: str | None = None,
-                epilog: str | None = None) -> argparse.ArgumentParser:  # fmt: skip
-    """Register subcommand ``name``, which runs ``func(args)`` for its exit code, with its --help texts."""
-    parser = sub.add_parser(name, help=help, description=description, epilog=epilog)
+                func: Callable[[argparse.Namespace], int]) -> argparse.ArgumentParser:  # fmt: skip
+    """Register subcommand ``name``, which runs ``func(args)`` for its exit code; its --help texts are func's docstring.
+
+    The docstring's first line is the command's line in its group's list, the paragraphs after it its description,
+    and a last paragraph that begins ``Example`` its epilog (argparse folds the lines of each).
+    """
+    help_line, description, epilog = command_texts(func)
+    parser = sub.add_parser(name, help=help_line, description=description, epilog=epilog)
     parser.set_defaults(func=func)
     return parser
+
+
+def command_texts(func: Callable[..., object]) -> tuple[str | None, str | None, str | None]:
+    """A command handler's help line, description and example, from its docstring (None for what it lacks)."""
+    paragraphs = [p for p in re.split(r"\n\s*\n", inspect.cleandoc(func.__doc__ or "")) if p.strip()]
+    if not paragraphs:  # no docstring: python -OO strips them
+        return None, None, None
+    example = paragraphs.pop() if len(paragraphs) > 1 and paragraphs[-1].startswith("Example") else None
+    return paragraphs[0], "\n\n".join(paragraphs[1:]) or None, example
 
 
 def add_rig_option(parser: argparse.ArgumentParser) -> None:

@@ -65,6 +65,15 @@ def _default_out(sweep: str) -> Path:
 
 
 def _run(args: argparse.Namespace) -> int:
+    """measure a sweep (on the simulated rig unless --rig names hardware)
+
+    Plan the sweep, then measure every reachable point: move, wait in position, read back the angles, capture an HDR
+    bracket, reduce the ROI, journal the point. Reference readings and a drift check on the rig's schedule. Ctrl-C stops
+    safely; `gonio resume RUN` continues. Exit codes: 0 done, 2 bad input, 3 hardware fault, 4 camera fault, 130
+    interrupted.
+
+    Example: gonio run examples/sweep_in_plane.toml --rig examples/rig_simulated.toml --out runs/gold
+    """
     from rig.run.config.files import load_sweep
     from rig.run.measuring.runner import RunStopped
     from rig.run.session import start_run
@@ -106,6 +115,13 @@ def _summary(result: Any) -> int:
 
 
 def _resume(args: argparse.Namespace) -> int:
+    """continue a stopped or killed run from its journal
+
+    Reopen a run directory, rebuild its plan from the manifest and measure the points its journal lacks. The table at
+    the end equals that of an uninterrupted run.
+
+    Example: gonio resume runs/gold
+    """
     from rig.run.adaptive.state import is_adaptive
     from rig.run.measuring.runner import RunStopped
     from rig.run.session import RunFinished, resume_run
@@ -125,6 +141,13 @@ def _resume(args: argparse.Namespace) -> int:
 
 
 def _plan(args: argparse.Namespace) -> int:
+    """print a sweep's plan and time estimate without moving anything
+
+    Generate the sweep's points, solve the rig's kinematics, list unreachable points with their reasons, order the rest
+    for the least move time and estimate the run time.
+
+    Example: gonio plan examples/sweep_grid.toml --rig examples/rig_simulated.toml --list
+    """
     from rig.run.config.files import load_sweep
     from rig.run.session import make_plan
 
@@ -146,6 +169,14 @@ def _plan(args: argparse.Namespace) -> int:
 
 
 def _demo(args: argparse.Namespace) -> int:
+    """measure a gold sample on the simulated rig and plot it against its true BRDF
+
+    Brings up the simulated rig (virtual servos on a pty, Mitsuba camera), runs an in-plane sweep of a rough gold sample
+    with reference readings, and writes the run, its table of BRDF samples and a plot of the measured BRDF (with error
+    bars) against the material's model.
+
+    Example: gonio demo --out out/demo
+    """
     from gonio.demo import run_demo
 
     return run_demo(Path(args.out), points=args.points, progress=not args.quiet)
@@ -159,41 +190,18 @@ def _add_sweep_and_rig(parser: argparse.ArgumentParser) -> None:
 
 def add_run_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``gonio run``, ``plan``, ``resume`` and ``demo``."""
-    run = add_command(
-        sub, "run", _run, help="measure a sweep (on the simulated rig unless --rig names hardware)",
-        description="Plan the sweep, then measure every reachable point: move, wait in position, read back "
-        "the angles, capture an HDR bracket, reduce the ROI, journal the point. Reference readings and a drift "
-        "check on the rig's schedule. Ctrl-C stops safely; `gonio resume RUN` continues. Exit codes: 0 done, "
-        "2 bad input, 3 hardware fault, 4 camera fault, 130 interrupted.",
-        epilog="Example: gonio run examples/sweep_in_plane.toml --rig examples/rig_simulated.toml --out runs/gold",
-    )  # fmt: skip
+    run = add_command(sub, "run", _run)
     _add_sweep_and_rig(run)
     run.add_argument("--out", help="run directory to create (default: runs/<sweep>-<date>-<time>)")
     add_quiet_option(run)
-    plan = add_command(
-        sub, "plan", _plan, help="print a sweep's plan and time estimate without moving anything",
-        description="Generate the sweep's points, solve the rig's kinematics, list unreachable points with their "
-        "reasons, order the rest for the least move time and estimate the run time.",
-        epilog="Example: gonio plan examples/sweep_grid.toml --rig examples/rig_simulated.toml --list",
-    )  # fmt: skip
+    plan = add_command(sub, "plan", _plan)
     _add_sweep_and_rig(plan)
     plan.add_argument("--list", action="store_true", help="also list every point in run order with its joints")
     add_quiet_option(plan, "no progress bar (shown on stderr for a plan of more than 10000 points)")
-    resume = add_command(
-        sub, "resume", _resume, help="continue a stopped or killed run from its journal",
-        description="Reopen a run directory, rebuild its plan from the manifest and measure the points its journal "
-        "lacks. The table at the end equals that of an uninterrupted run.",
-        epilog="Example: gonio resume runs/gold",
-    )  # fmt: skip
+    resume = add_command(sub, "resume", _resume)
     resume.add_argument("run", help="run directory (or an adaptive sweep's directory)")
     add_quiet_option(resume)
-    demo = add_command(
-        sub, "demo", _demo, help="measure a gold sample on the simulated rig and plot it against its true BRDF",
-        description="Brings up the simulated rig (virtual servos on a pty, Mitsuba camera), runs an in-plane "
-        "sweep of a rough gold sample with reference readings, and writes the run, its table of BRDF samples and "
-        "a plot of the measured BRDF (with error bars) against the material's model.",
-        epilog="Example: gonio demo --out out/demo",
-    )  # fmt: skip
+    demo = add_command(sub, "demo", _demo)
     demo.add_argument("--out", default="out/demo", help="output directory (default: out/demo; replaced)")
     demo.add_argument("--points", type=int, default=13, help="view angles per incidence (default 13)")
     add_quiet_option(demo)

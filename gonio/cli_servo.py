@@ -59,6 +59,10 @@ def _bus(args: argparse.Namespace) -> DynamixelBus:
 
 
 def _scan(args: argparse.Namespace) -> int:
+    """find servos at one or more baud rates
+
+    Example: gonio servo scan --port /dev/ttyUSB0 --bauds 57600 1000000
+    """
     with _bus(args) as bus:
         found = bus.scan(baudrates=args.bauds, ids=range(args.max_id + 1) if args.ping_each else None)
     if not found:
@@ -71,6 +75,10 @@ def _scan(args: argparse.Namespace) -> int:
 
 
 def _ping(args: argparse.Namespace) -> int:
+    """ping servos by id
+
+    Example: gonio servo ping --port /dev/ttyUSB0 1 2 3 4
+    """
     missing = []
     with _bus(args) as bus:
         for sid in args.ids:
@@ -88,6 +96,10 @@ def _ping(args: argparse.Namespace) -> int:
 
 
 def _status(args: argparse.Namespace) -> int:
+    """position, torque, motion and hardware errors
+
+    Example: gonio servo status --port /dev/ttyUSB0 1 2 3 4
+    """
     with _bus(args) as bus:
         for sid in args.ids:
             table = bus.table(sid)
@@ -103,6 +115,10 @@ def _status(args: argparse.Namespace) -> int:
 
 
 def _move(args: argparse.Namespace) -> int:
+    """move one joint of a rig file to an angle and wait until in position
+
+    Example: gonio servo move --rig examples/rig_dynamixel.toml light 30
+    """
     from rig.instrument.clock import SystemClock
     from rig.instrument.links.dynamixel import DynamixelLink
     from rig.run.config.files import load_rig
@@ -162,6 +178,14 @@ def _torque_off_note(bus: DynamixelBus, ids: list[int], models: dict[int, int]) 
 
 
 def _set_id(args: argparse.Namespace) -> int:
+    """give one servo a new id (asks first; --yes skips the question)
+
+    Pings the servo at ID, makes sure NEW_ID is free, asks, switches its torque off (the EEPROM is locked while torque
+    is on), writes ID (7) and checks that it answers at NEW_ID and nothing at ID. Connect new servos one at a time: they
+    all leave the factory as id 1.
+
+    Example: gonio servo set-id --port /dev/ttyUSB0 --baud 57600 1 3
+    """
     old, new = args.id, args.new_id
     if old == new:
         raise CliError(f"new id {new} is the servo's id already; nothing to change")
@@ -196,6 +220,13 @@ def _set_id(args: argparse.Namespace) -> int:
 
 
 def _set_baud(args: argparse.Namespace) -> int:
+    """move servos to a new baud rate (asks first; --yes skips the question)
+
+    Pings each servo at --baud, asks, switches torque off, writes Baud Rate (8), then talks at NEW_BAUD and checks that
+    each answers there. Change every servo of a bus together: one bus has one rate.
+
+    Example: gonio servo set-baud --port /dev/ttyUSB0 --baud 57600 1 2 3 4 1000000
+    """
     new = args.new_baud
     if new not in SETTABLE_BAUDRATES:
         raise CliError(f"baud rate {new}: expected one of {', '.join(map(str, SETTABLE_BAUDRATES))} (rates both the "
@@ -239,7 +270,14 @@ def _retry_ping(bus: DynamixelBus, sid: int) -> bool:
 
 
 def _check(args: argparse.Namespace) -> int:
-    """Whether the port is there, may be opened, and its adapter's latency timer suits the bus."""
+    """is the port there and yours, is its USB latency timer right; optionally ping ids
+
+    Checks the serial port (present, readable and writable by you, else which group to join), the USB adapter's latency
+    timer in /sys/bus/usb-serial/devices/<tty>/latency_timer (above 1 ms every reply waits for it; above --latency-ms
+    replies look lost) and, with ids, pings them. Exit 0 when all is well, 3 if not.
+
+    Example: gonio servo check --port /dev/ttyUSB0 --latency-ms 1 1 2 3 4
+    """
     problems = 0
     port = Path(args.port)
     if not port.exists():
@@ -330,52 +368,31 @@ def add_servo_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -
     servo = sub.add_parser("servo", help="scan, ping, check, inspect, move, set the id or baud of Dynamixel servos",
                            description="Commissioning tools for a Dynamixel Protocol 2.0 bus.")  # fmt: skip
     acts = servo.add_subparsers(dest="servo_action", required=True, metavar="ACTION")
-    scan = add_command(acts, "scan", _scan, help="find servos at one or more baud rates",
-                       epilog="Example: gonio servo scan --port /dev/ttyUSB0 --bauds 57600 1000000")  # fmt: skip
+    scan = add_command(acts, "scan", _scan)
     _common(scan)
     scan.add_argument("--bauds", type=int, nargs="+", choices=SDK_BAUDRATES, default=[57600, 1_000_000],
                       metavar="BAUD", help="baud rates to try (default 57600 1000000)")  # fmt: skip
     scan.add_argument("--ping-each", action="store_true", help="ping ids one by one instead of a broadcast ping")
     scan.add_argument("--max-id", type=int, default=20, help="highest id for --ping-each (default 20)")
-    for name, helptext, func in (("ping", "ping servos by id", _ping),
-                                 ("status", "position, torque, motion and hardware errors", _status)):  # fmt: skip
-        p = add_command(acts, name, func, help=helptext,
-                        epilog=f"Example: gonio servo {name} --port /dev/ttyUSB0 1 2 3 4")  # fmt: skip
+    for name, func in (("ping", _ping), ("status", _status)):
+        p = add_command(acts, name, func)
         _common(p)
         p.add_argument("ids", type=int, nargs="+", help="servo ids")
-    check = add_command(
-        acts, "check", _check, help="is the port there and yours, is its USB latency timer right; optionally ping ids",
-        description="Checks the serial port (present, readable and writable by you, else which group to join), the "
-        "USB adapter's latency timer in /sys/bus/usb-serial/devices/<tty>/latency_timer (above 1 ms every reply waits "
-        "for it; above --latency-ms replies look lost) and, with ids, pings them. Exit 0 when all is well, 3 if not.",
-        epilog="Example: gonio servo check --port /dev/ttyUSB0 --latency-ms 1 1 2 3 4",
-    )  # fmt: skip
+    check = add_command(acts, "check", _check)
     _common(check)
     check.add_argument("ids", type=int, nargs="*", help="servo ids to ping once the port looks right")
-    set_id = add_command(
-        acts, "set-id", _set_id, help="give one servo a new id (asks first; --yes skips the question)",
-        description="Pings the servo at ID, makes sure NEW_ID is free, asks, switches its torque off (the EEPROM is "
-        "locked while torque is on), writes ID (7) and checks that it answers at NEW_ID and nothing at ID. Connect "
-        "new servos one at a time: they all leave the factory as id 1.",
-        epilog="Example: gonio servo set-id --port /dev/ttyUSB0 --baud 57600 1 3",
-    )  # fmt: skip
+    set_id = add_command(acts, "set-id", _set_id)
     _common(set_id)
     set_id.add_argument("id", type=_servo_id, help="the servo's id now")
     set_id.add_argument("new_id", type=_servo_id, help="its new id (0..252)")
     _add_yes(set_id)
-    set_baud = add_command(
-        acts, "set-baud", _set_baud, help="move servos to a new baud rate (asks first; --yes skips the question)",
-        description="Pings each servo at --baud, asks, switches torque off, writes Baud Rate (8), then talks at "
-        "NEW_BAUD and checks that each answers there. Change every servo of a bus together: one bus has one rate.",
-        epilog="Example: gonio servo set-baud --port /dev/ttyUSB0 --baud 57600 1 2 3 4 1000000",
-    )  # fmt: skip
+    set_baud = add_command(acts, "set-baud", _set_baud)
     _common(set_baud)
     set_baud.add_argument("ids", type=_servo_id, nargs="+", help="servo ids to change")
     set_baud.add_argument("new_baud", type=int, metavar="NEW_BAUD",
                           help=f"the new rate, one of {', '.join(map(str, SETTABLE_BAUDRATES))}")  # fmt: skip
     _add_yes(set_baud)
-    move = add_command(acts, "move", _move, help="move one joint of a rig file to an angle and wait until in position",
-                       epilog="Example: gonio servo move --rig examples/rig_dynamixel.toml light 30")  # fmt: skip
+    move = add_command(acts, "move", _move)
     move.add_argument("--rig", required=True, help="rig file (TOML) with a dynamixel link")
     move.add_argument("--port", help="override the rig file's port")
     move.add_argument("--keep-torque", action="store_true", help="leave the servos holding afterwards")

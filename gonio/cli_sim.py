@@ -99,6 +99,10 @@ def _announce(line: str) -> None:
 
 
 def _servos(args: argparse.Namespace) -> int:
+    """virtual Dynamixel Protocol 2.0 bus of XM430-W350 servos
+
+    Example: gonio sim servos --ids 1-4 --baud 1000000
+    """
     from simulator.dynamixel import open_virtual_bus
     from simulator.dynamixel.bus import serve_forever
 
@@ -116,6 +120,10 @@ def _servos(args: argparse.Namespace) -> int:
 
 
 def _grbl(args: argparse.Namespace) -> int:
+    """virtual GRBL 1.1 motion controller
+
+    Example: gonio sim grbl --axes XYZA --homing
+    """
     from simulator.grbl.server import serve_grbl
     from simulator.grbl.settings import AXIS_DEFAULTS
 
@@ -152,6 +160,20 @@ def _resolution(text: str) -> tuple[int, int]:
 
 
 def _rig(args: argparse.Namespace) -> int:
+    """a whole simulated rig for gonio's real backends: its link on a pty, a tethered RAW camera
+
+    Rehearses a rig: serves the rig file's virtual servos (or virtual GRBL controller) on a pseudo-terminal (first
+    stdout line: its path) and, in place of the camera, a tethering program that writes whole-sensor DNG frames into
+    --frames, rendered by Mitsuba from the pose the axes physically hold. A hardware rig file (link kind dynamixel or
+    grbl, camera backend folder) then runs against it as against the real rig, with [link] port and [camera] folder
+    pointed here; a simulated rig file (its [simulation] hidden from the controller) is served on --link, and
+    --write-rig writes the hardware rig file for it. Frames are shot when the folder camera leaves a shot request (a rig
+    file without a trigger) or when 'capture SECONDS' is typed on stdin. What an operator puts on the stage is typed
+    too: 'scene tile' (the reference tile), 'scene board' (the ChArUco board), 'scene flat' (a uniform light before the
+    lens), 'scene dark' (the lens cap), 'scene sample'.
+
+    Example: gonio sim rig --rig examples/rig_dynamixel.toml --frames out/tether --speed 10
+    """
     import threading
     from pathlib import Path
 
@@ -243,6 +265,15 @@ def _answer(tether: Any, text: str) -> None:
 
 
 def _shoot(args: argparse.Namespace) -> int:
+    """a tether trigger for the rehearsal: ask gonio sim rig for one frame and wait until it is shot
+
+    Leaves a shot request in the rehearsal's hot folder and returns once gonio sim rig has taken it (the frame's file
+    follows at once). As a rig file's [camera] trigger it stands where a tethering program's remote would:
+    trigger = ["gonio", "sim", "shoot", "--folder", "/tmp/tether", "--exposure-s", "{exposure_s}", "--gain", "{gain}",
+    "--index", "{index}"].
+
+    Example: gonio sim shoot --folder /tmp/tether --exposure-s 0.01
+    """
     import time
     from pathlib import Path
 
@@ -270,6 +301,14 @@ PAINT = {"model": "CookTorrance", "alpha": 0.2, "fresnel": "dielectric", "eta": 
 
 
 def _merl(args: argparse.Namespace) -> int:
+    """write a MERL .binary file of a known material, to try gonio analyze on
+
+    Tabulates a material at the MERL bins (90 x 90 x 180 half/difference angles, three channels: a 35 MB file) and
+    writes it in the MERL format: the rig file's [simulation.material], or a glossy paint (CookTorrance alpha 0.2,
+    dielectric eta 1.5 over a diffuse base rho_d 0.2, 0.3, 0.4).
+
+    Example: gonio sim merl --out paint.binary
+    """
     from pathlib import Path
 
     from model.merl import MerlTable, write_merl
@@ -294,11 +333,7 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         "stdout is the device path; point any client at it (gonio, dynamixel_sdk, ROBOTIS tools, a G-code sender).",
     )
     kinds = sim.add_subparsers(dest="sim_kind", required=True, metavar="DEVICE")
-    servos = add_command(
-        kinds, "servos", _servos,
-        help="virtual Dynamixel Protocol 2.0 bus of XM430-W350 servos",
-        epilog="Example: gonio sim servos --ids 1-4 --baud 1000000",
-    )
+    servos = add_command(kinds, "servos", _servos)
     servos.add_argument("--ids", type=_ids, default=(1, 2, 3, 4), help="servo ids, e.g. 1,2,3 or 1-4 (default 1-4)")
     servos.add_argument(
         "--baud",
@@ -312,11 +347,7 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     servos.add_argument(
         "--return-delay", action="store_true", help="honour each servo's Return Delay Time in real time"
     )
-    grbl = add_command(
-        kinds, "grbl", _grbl,
-        help="virtual GRBL 1.1 motion controller",
-        epilog="Example: gonio sim grbl --axes XYZA --homing",
-    )
+    grbl = add_command(kinds, "grbl", _grbl)
     grbl.add_argument("--axes", type=_grbl_axes, default="XYZ",
                       help="axis letters, the first of XYZABC in order (default XYZ)")  # fmt: skip
     _add_speed(grbl)
@@ -328,21 +359,7 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         "gonio run's GRBL link needs (it homes before it moves and refuses a controller without homing). "
         "Default: GRBL's factory settings (homing off, Idle at 0)",
     )
-    rig = add_command(
-        kinds, "rig", _rig,
-        help="a whole simulated rig for gonio's real backends: its link on a pty, a tethered RAW camera",
-        description="Rehearses a rig: serves the rig file's virtual servos (or virtual GRBL controller) on a "
-        "pseudo-terminal (first stdout line: its path) and, in place of the camera, a tethering program that "
-        "writes whole-sensor DNG frames into --frames, rendered by Mitsuba from the pose the axes physically hold. "
-        "A hardware rig file (link kind dynamixel or grbl, camera backend folder) then runs against it as against "
-        "the real rig, with [link] port and [camera] folder pointed here; a simulated rig file (its [simulation] "
-        "hidden from the controller) is served on --link, and --write-rig writes the hardware rig file for it. "
-        "Frames are shot when the folder camera leaves a shot request (a rig file without a trigger) or when "
-        "'capture SECONDS' is typed on stdin. What an operator puts on the stage is typed too: 'scene tile' (the "
-        "reference tile), 'scene board' (the ChArUco board), 'scene flat' (a uniform light before the lens), "
-        "'scene dark' (the lens cap), 'scene sample'.",
-        epilog="Example: gonio sim rig --rig examples/rig_dynamixel.toml --frames out/tether --speed 10",
-    )  # fmt: skip
+    rig = add_command(kinds, "rig", _rig)
     add_rig_option(rig)
     rig.add_argument("--link", choices=("dynamixel", "grbl"),
                      help="for a simulated rig file: the link to serve (default its [simulation] link)")  # fmt: skip
@@ -352,27 +369,13 @@ def add_sim_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
                      help="sensor pixels (default: a simulated file's camera.resolution; for a hardware file the "
                           "smallest sensor centred on its camera.roi)")  # fmt: skip
     rig.add_argument("--write-rig", metavar="PATH", help="write the hardware rig file a controller uses here (TOML)")
-    shoot = add_command(
-        kinds, "shoot", _shoot,
-        help="a tether trigger for the rehearsal: ask gonio sim rig for one frame and wait until it is shot",
-        description="Leaves a shot request in the rehearsal's hot folder and returns once gonio sim rig has taken "
-        "it (the frame's file follows at once). As a rig file's [camera] trigger it stands where a tethering "
-        "program's remote would: trigger = [\"gonio\", \"sim\", \"shoot\", \"--folder\", \"/tmp/tether\", "
-        "\"--exposure-s\", \"{exposure_s}\", \"--gain\", \"{gain}\", \"--index\", \"{index}\"].",
-        epilog="Example: gonio sim shoot --folder /tmp/tether --exposure-s 0.01",
-    )  # fmt: skip
+    shoot = add_command(kinds, "shoot", _shoot)
     shoot.add_argument("--folder", required=True, help="the hot folder gonio sim rig --frames serves")
     shoot.add_argument("--exposure-s", type=_positive("exposure"), required=True, help="exposure in seconds")
     shoot.add_argument("--gain", type=_positive("gain"), default=1.0, help="linear gain (default 1)")
     shoot.add_argument("--index", type=int, default=0, help="the frame's number, for the request's name (default 0)")
     shoot.add_argument("--timeout-s", type=_positive("timeout"), default=60.0,
                        help="seconds to wait for the rehearsal (default 60)")  # fmt: skip
-    merl = add_command(
-        kinds, "merl", _merl, help="write a MERL .binary file of a known material, to try gonio analyze on",
-        description="Tabulates a material at the MERL bins (90 x 90 x 180 half/difference angles, three channels: "
-        "a 35 MB file) and writes it in the MERL format: the rig file's [simulation.material], or a glossy paint "
-        "(CookTorrance alpha 0.2, dielectric eta 1.5 over a diffuse base rho_d 0.2, 0.3, 0.4).",
-        epilog="Example: gonio sim merl --out paint.binary",
-    )  # fmt: skip
+    merl = add_command(kinds, "merl", _merl)
     merl.add_argument("--out", required=True, help="the .binary file to write (replaced)")
     merl.add_argument("--rig", help="rig file (TOML) whose [simulation.material] to tabulate; default: a paint")

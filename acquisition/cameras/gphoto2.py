@@ -23,7 +23,7 @@ from typing import Any
 
 from acquisition.cameras import CameraError, ClockLike, RealTimeClock, import_backend
 from acquisition.files.images import read_frame
-from acquisition.files.metadata import DEFAULT_EXPOSURE_RTOL
+from acquisition.files.metadata import DEFAULT_EXPOSURE_RTOL, ReadOptions
 from acquisition.frame import ExposureSettings, Frame
 
 _SHUTTER_RE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(?:/\s*(\d+(?:\.\d+)?))?\s*(?:s|sec|\"|'')?\s*$", re.IGNORECASE)
@@ -200,7 +200,8 @@ class GPhoto2Camera:
         except gp.GPhoto2Error as exc:
             raise CameraError(f"gphoto2 {self.identity}: download of {folder}/{name} failed: {exc}") from exc
         expected = self._applied.exposure_s if self._applied else None
-        frame = read_frame(target, expected_exposure_s=expected, rtol=self.exposure_rtol, timestamp_s=self.clock.now())
+        options = ReadOptions(expected_exposure_s=expected, rtol=self.exposure_rtol, timestamp_s=self.clock.now())
+        frame = read_frame(target, options)
         if frame.camera_id == "unknown":
             frame = replace(frame, camera_id=self.identity)
         return frame

@@ -20,7 +20,7 @@ from pathlib import Path
 from acquisition.cameras import CameraError, ClockLike, RealTimeClock
 from acquisition.cameras.shot_request import withdraw_request, write_request
 from acquisition.files.images import read_frame
-from acquisition.files.metadata import DEFAULT_EXPOSURE_RTOL, check_exposure
+from acquisition.files.metadata import DEFAULT_EXPOSURE_RTOL, ReadOptions, check_exposure
 from acquisition.frame import ExposureSettings, Frame, FrameError
 
 DEFAULT_PATTERNS: tuple[str, ...] = (
@@ -197,11 +197,8 @@ class TetheredFolderCamera:
                             raise error
                         break
                 try:
-                    frame = read_frame(
-                        path,
-                        exposure_s=None if self._requested is None else self._requested.exposure_s,
-                        timestamp_s=self.clock.now(),
-                    )
+                    fallback = None if self._requested is None else self._requested.exposure_s
+                    frame = read_frame(path, ReadOptions(exposure_s=fallback, timestamp_s=self.clock.now()))
                 except FrameError as exc:
                     failed[path.name] = (state, self.clock.now(), exc)
                     break

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from acquisition.exposure.snr import FloatArray, Frames, pixel_snr
-from acquisition.exposure.spec import CameraTiming, RoiLevel, _Rules
+from acquisition.exposure.spec import CameraTiming, RoiLevel, _finite, _Rules
 from acquisition.noise import SensorNoise
 
 
@@ -171,3 +171,11 @@ def _lift_dark_end(
             "(the merge ignores those samples) to lift the dark end"
         )
     return frames, reached
+
+
+def fixed_bracket(center_s: float, n: int = 7, stops: float = 2.0) -> tuple[float, ...]:
+    """Exposures in seconds of an n-frame bracket ``stops`` EV apart, centred (geometrically) on ``center_s``."""
+    _finite("fixed_bracket", "center_s", center_s, lo_open=True)
+    if int(n) != n or n < 1:
+        raise ValueError(f"fixed_bracket.n = {n!r}: expected a whole number >= 1")
+    return tuple(center_s * 2.0 ** (stops * (k - (n - 1) / 2)) for k in range(n))

@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from acquisition.exposure.plan import plan_exposure
-from acquisition.exposure.snr import _dark_rate
+from acquisition.exposure.snr import _dark_rate, detection_exposure_s
 from acquisition.exposure.spec import CameraTiming, ExposureError, ExposurePlan, RoiLevel
 from acquisition.noise import SensorNoise
 
@@ -51,6 +51,7 @@ def meter(
     dark_frames: int = 0,
     max_frames: int = 64,
     max_total_s: float | None = None,
+    detect_snr: float | None = None,
 ) -> MeterResult:
     """Plan from test frames: ``take_roi(exposure_s)`` returns the ROI's pixels in counts above black.
 
@@ -62,6 +63,7 @@ def meter(
     default noise: too noisy a level estimate) is retaken at the exposure that would put its peak at
     ``safety``. At most ``max_tries`` test frames. The plan is made from the last unclipped frame's level
     (its noisy maximum overstates the peak: conservative); the test frames are not part of the plan.
+    ``detect_snr``: no planned frame so short that a pixel at a channel's ROI mean has a lower SNR in it.
     """
     cam = camera or CameraTiming()
     if not step_factor > 1:
@@ -79,6 +81,7 @@ def meter(
     taken: list[float] = []
     notes: list[str] = []
     level: RoiLevel | None = None  # from the last unclipped test frame
+    channels: list[RoiLevel] = []  # its channels' means, for detect_snr
     clipped = False
     for _ in range(max_tries):
         counts = np.asarray(take_roi(t), dtype=float)
@@ -94,7 +97,10 @@ def meter(
             t, clipped = shorter, True
             continue
         clipped = False
-        level = RoiLevel.from_pixels((counts / t - dr) / cam.gain)
+        rates = (counts / t - dr) / cam.gain
+        level = RoiLevel.from_pixels(rates)
+        means = rates.reshape(-1, counts.shape[-1]).mean(axis=0) if counts.ndim == 3 else [level.mean_dn_per_s]
+        channels = [RoiLevel(level.peak_dn_per_s, min(max(float(m), 0.0), level.peak_dn_per_s)) for m in means]
         if counts.ndim == 3:
             # (H, W, C): each channel's ROI mean averages H*W pixels, not H*W*C; counting the channels as
             # pixels would promise sqrt(C) more SNR than the plan delivers.
@@ -112,6 +118,8 @@ def meter(
         raise ExposureError(f"ROI still clips after {max_tries} test frames down to {taken[-1]:.4g} s")
     if clipped:
         notes.append("out of test frames after a clipped one: planned from the last unclipped frame")
+    seen = None if detect_snr is None else detection_exposure_s(channels, noise, detect_snr, cam.gain, dark_frames)
     plan = plan_exposure(level, noise, target_snr, cam, pixel_snr_target=pixel_snr_target, safety=safety,
-                         dark_frames=dark_frames, max_frames=max_frames, max_total_s=max_total_s)
+                         dark_frames=dark_frames, max_frames=max_frames, max_total_s=max_total_s,
+                         shortest_s=seen)
     return MeterResult(plan=plan, level=level, test_exposures_s=tuple(taken), notes=tuple(notes))

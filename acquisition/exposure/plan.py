@@ -73,15 +73,17 @@ def plan_exposure(
     max_frames: int = 64,
     max_total_s: float | None = None,
     bracket_ratio: float = 4.0,
+    shortest_s: float | None = None,
 ) -> ExposurePlan:
     """Fewest and shortest frames (seconds) reaching ``target_snr`` on the ROI mean without saturating the ROI.
 
-    ``level`` is one ROI level in counts/s, or one per colour channel (the brightest channel limits the
-    exposure, the dimmest sets the SNR). ``pixel_snr_target`` asks in addition for that per-pixel SNR over
-    the ROI's levels from ``dark_dn_per_s`` to the peak (it may add a bracket of longer frames). ``safety``
-    is the fraction of saturation the ROI peak may reach in the frames that must not clip. Raises
-    ExposureError if the peak saturates even at the shortest exposure; an unreachable target returns a plan
-    with ``reached=False``.
+    ``level`` is one ROI level in counts/s, or one per colour channel (the brightest channel limits the exposure,
+    the dimmest sets the SNR). ``pixel_snr_target`` asks in addition for that per-pixel SNR over the ROI's levels
+    from ``dark_dn_per_s`` to the peak (it may add a bracket of longer frames). ``safety`` is the fraction of
+    saturation the ROI peak may reach in the frames that must not clip. Raises ExposureError if the peak saturates
+    even at the shortest exposure; an unreachable target returns a plan with ``reached=False``. ``shortest_s``: no
+    frame shorter (s), up to the longest the peak allows (a large ROI's mean reaches its target in frames too short
+    to detect its pixels: ``snr.detection_exposure_s``).
     """
     cam = camera or CameraTiming()
     levels = [level] if isinstance(level, RoiLevel) else list(level)
@@ -95,6 +97,10 @@ def plan_exposure(
     t_top, n_cap, limits = _longest_frame(levels, rules)
     frames, reached, notes = _repeat_frames(roi.snr_of, target, t_top, n_cap, max_frames, cam, limits, roi.guess,
                                             roi.reaches)  # fmt: skip
+    floor_s = 0.0 if shortest_s is None else _finite("plan_exposure", "shortest_s", shortest_s)
+    if reached and max(frames) < min(floor_s, t_top):
+        frames = {min(cam.ceil(floor_s) or t_top, t_top): sum(frames.values())}
+        notes.append(f"frames lengthened to {max(frames):.4g} s: shortest_s = {floor_s:.4g} s")
 
     # The worst pixel's SNR, known whenever every channel's dark level is; asked for, it may add longer frames.
     expected_pixel: float | None = None
@@ -390,11 +396,3 @@ def _evaluate(
         gain=gain,
         notes=tuple(notes),
     )
-
-
-def fixed_bracket(center_s: float, n: int = 7, stops: float = 2.0) -> tuple[float, ...]:
-    """Exposures in seconds of an n-frame bracket ``stops`` EV apart, centred (geometrically) on ``center_s``."""
-    _finite("fixed_bracket", "center_s", center_s, lo_open=True)
-    if int(n) != n or n < 1:
-        raise ValueError(f"fixed_bracket.n = {n!r}: expected a whole number >= 1")
-    return tuple(center_s * 2.0 ** (stops * (k - (n - 1) / 2)) for k in range(n))

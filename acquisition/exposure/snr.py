@@ -254,6 +254,21 @@ def exposure_for_snr(
     return (lin + math.sqrt(lin * lin + 4.0 * quad * const)) / (2.0 * quad)
 
 
+def detection_exposure_s(
+    levels: Sequence[RoiLevel], noise: SensorNoise, pixel_snr_goal: float, gain: float = 1.0, dark_frames: int = 0
+) -> float | None:
+    """Exposure (s) at which one frame gives a pixel at each level's ROI mean ``pixel_snr_goal``; None if all dark.
+
+    The ROI mean's SNR is sqrt(n_pixels) times that pixel's, so this is ``exposure_for_snr`` of a one-pixel ROI.
+    """
+    if not (math.isfinite(pixel_snr_goal) and pixel_snr_goal > 0):
+        raise ValueError(f"detection_exposure_s: pixel_snr_goal = {pixel_snr_goal!r}, expected a finite SNR > 0")
+    need = [exposure_for_snr(RoiLevel(lv.peak_dn_per_s, lv.mean_dn_per_s), noise, pixel_snr_goal, 1, gain, dark_frames)
+            for lv in levels]  # fmt: skip
+    known = [t for t in need if t is not None]
+    return max(known) if known else None
+
+
 def pixel_snr(
     rate_dn_per_s: npt.ArrayLike,
     noise: SensorNoise,

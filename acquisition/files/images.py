@@ -15,15 +15,7 @@ from typing import Any
 import numpy as np
 import tifffile
 
-from acquisition.files.metadata import (
-    DEFAULT_EXPOSURE_RTOL,
-    PathLike,
-    _check_file,
-    _gain_from_iso,
-    _resolve_exposure,
-    _tiff_metadata,
-    camera_identity,
-)
+from acquisition.files.metadata import NO_OPTIONS, PathLike, ReadOptions, _check_file, _tiff_metadata, frame_fields
 from acquisition.files.raw import RAW_EXTENSIONS, read_raw
 from acquisition.frame import Frame, FrameError, FrameKind
 
@@ -32,15 +24,7 @@ EIGHT_BIT_EXTENSIONS = frozenset({".png", ".jpg", ".jpeg"})
 FRAME_EXTENSIONS = RAW_EXTENSIONS | TIFF_EXTENSIONS | EIGHT_BIT_EXTENSIONS
 
 
-def read_tiff(
-    path: PathLike,
-    *,
-    exposure_s: float | None = None,
-    expected_exposure_s: float | None = None,
-    rtol: float = DEFAULT_EXPOSURE_RTOL,
-    black_level: float = 0.0,
-    timestamp_s: float = 0.0,
-) -> Frame:
+def read_tiff(path: PathLike, options: ReadOptions = NO_OPTIONS, *, black_level: float = 0.0) -> Frame:
     """Read a TIFF: 16-bit or float as ``linear``, 8-bit as ``8bit``; exposure (seconds) from EXIF ExposureTime.
 
     A TIFF holding a CFA mosaic or DNG tags is decoded by ``read_raw``. Tethering software writes linear
@@ -57,9 +41,7 @@ def read_tiff(
     except (tifffile.TiffFileError, ValueError, OSError, struct.error) as exc:
         raise FrameError(f"{p}: cannot decode as TIFF: {type(exc).__name__}: {exc}") from exc
     if is_raw or data is None:
-        return read_raw(
-            p, exposure_s=exposure_s, expected_exposure_s=expected_exposure_s, rtol=rtol, timestamp_s=timestamp_s
-        )
+        return read_raw(p, options)
     meta = _tiff_metadata(p)
     if data.ndim == 3 and data.shape[-1] == 4:
         data = data[..., :3]  # drop alpha
@@ -78,20 +60,21 @@ def read_tiff(
         kind, white = "linear", math.inf  # a float image has no ADC ceiling
     else:
         raise FrameError(f"{p}: TIFF sample type {data.dtype} is not supported (8/16/32-bit unsigned or float)")
-    value, source = _resolve_exposure(meta.get("ExposureTime"), exposure_s, expected_exposure_s, rtol, where)
-    iso = meta.get("ISOSpeedRatings")
-    return Frame(
-        data=data,
-        kind=kind,
-        exposure_s=value,
-        gain=_gain_from_iso(iso),
-        black_level=float(black_level),
-        white_level=white,
-        timestamp_s=timestamp_s,
-        camera_id=camera_identity(meta),
-        source=where,
-        extra={"exposure_source": source, "iso": iso},
-    )
+    return _exif_frame(data, kind, float(black_level), white, meta, options, where)
+
+
+def _exif_frame(
+    data: np.ndarray,
+    kind: FrameKind,
+    black: float,
+    white: float,
+    meta: dict[str, Any],
+    options: ReadOptions,
+    where: str,
+) -> Frame:
+    """A decoded image as a Frame whose exposure, gain and camera come from the file's EXIF tags ``meta``."""
+    fields = frame_fields(options, meta, meta.get("ExposureTime"), meta.get("ISOSpeedRatings"), where, where)
+    return Frame(data=data, kind=kind, black_level=black, white_level=white, **fields)
 
 
 def _jpeg_exif(p: Path) -> dict[str, Any]:
@@ -114,17 +97,10 @@ def _jpeg_exif(p: Path) -> dict[str, Any]:
     return {}
 
 
-def read_8bit(
-    path: PathLike,
-    *,
-    exposure_s: float | None = None,
-    expected_exposure_s: float | None = None,
-    rtol: float = DEFAULT_EXPOSURE_RTOL,
-    timestamp_s: float = 0.0,
-) -> Frame:
+def read_8bit(path: PathLike, options: ReadOptions = NO_OPTIONS) -> Frame:
     """Read an 8-bit PNG or JPEG (OpenCV) as an ``8bit`` Frame in RGB order; exposure (seconds) from JPEG EXIF.
 
-    PNG carries no exposure time: pass ``exposure_s``.
+    PNG carries no exposure time: pass ``ReadOptions(exposure_s=...)``.
     """
     import cv2  # deferred: OpenCV is slow to import and only 8-bit images need it
 
@@ -140,49 +116,23 @@ def read_8bit(
     if data.ndim == 3:
         data = cv2.cvtColor(data, cv2.COLOR_BGRA2RGB if data.shape[-1] == 4 else cv2.COLOR_BGR2RGB)
     meta = _jpeg_exif(p) if p.suffix.lower() in (".jpg", ".jpeg") else {}
-    value, source = _resolve_exposure(meta.get("ExposureTime"), exposure_s, expected_exposure_s, rtol, str(p))
-    iso = meta.get("ISOSpeedRatings")
-    return Frame(
-        data=data,
-        kind="8bit",
-        exposure_s=value,
-        gain=_gain_from_iso(iso),
-        black_level=0.0,
-        white_level=255.0,
-        timestamp_s=timestamp_s,
-        camera_id=camera_identity(meta),
-        source=str(p),
-        extra={"exposure_source": source, "iso": iso},
-    )
+    return _exif_frame(data, "8bit", 0.0, 255.0, meta, options, str(p))
 
 
-def read_frame(
-    path: PathLike,
-    *,
-    exposure_s: float | None = None,
-    expected_exposure_s: float | None = None,
-    rtol: float = DEFAULT_EXPOSURE_RTOL,
-    timestamp_s: float = 0.0,
-) -> Frame:
+def read_frame(path: PathLike, options: ReadOptions = NO_OPTIONS) -> Frame:
     """Read a RAW, TIFF, PNG or JPEG file into a Frame by its extension; exposures in seconds.
 
-    ``exposure_s`` is used only when the file has no exposure time; ``expected_exposure_s`` raises
-    FrameError when the file's exposure differs from it by more than ``rtol`` (relative).
+    ``options.exposure_s`` is used only when the file has no exposure time; ``options.expected_exposure_s`` raises
+    FrameError when the file's exposure differs from it by more than ``options.rtol`` (relative).
     """
     p = Path(path)
     suffix = p.suffix.lower()
-    kwargs: dict[str, Any] = {
-        "exposure_s": exposure_s,
-        "expected_exposure_s": expected_exposure_s,
-        "rtol": rtol,
-        "timestamp_s": timestamp_s,
-    }
     if suffix in RAW_EXTENSIONS:
-        return read_raw(p, **kwargs)
+        return read_raw(p, options)
     if suffix in TIFF_EXTENSIONS:
-        return read_tiff(p, **kwargs)
+        return read_tiff(p, options)
     if suffix in EIGHT_BIT_EXTENSIONS:
-        return read_8bit(p, **kwargs)
+        return read_8bit(p, options)
     raw_list = ", ".join(sorted(RAW_EXTENSIONS))
     raise FrameError(
         f"{p}: unsupported file extension {p.suffix or '(none)'!r}; expected a RAW ({raw_list}), TIFF, PNG or JPEG file"

@@ -1,7 +1,8 @@
 """File and metadata helpers shared by the frame readers: file checks, exposure checks, TIFF/EXIF tags, camera identity.
 
-``check_exposure`` compares the exposure a file reports with the one that was requested;
-``_resolve_exposure`` picks which of the file's and the caller's exposure to record. ``_tiff_metadata``
+``ReadOptions`` is what a caller tells every reader about the frame it expects; ``check_exposure`` compares the
+exposure a file reports with the one that was requested, and ``frame_fields`` picks which of the file's and the
+caller's exposure to record and fills in what every reader's Frame takes from the metadata. ``_tiff_metadata``
 reads identity and exposure tags from any TIFF-based file (TIFF, DNG and most RAW formats, JPEG EXIF),
 and ``camera_identity`` turns them into a camera id string.
 """
@@ -13,6 +14,7 @@ import io
 import math
 import os
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -51,22 +53,53 @@ def check_exposure(actual_s: float, expected_s: float | None, where: str, rtol: 
         )
 
 
-def _resolve_exposure(
+@dataclass(frozen=True)
+class ReadOptions:
+    """What the caller knows of the frame a file holds: every frame reader takes one (exposures in seconds).
+
+    ``exposure_s`` is recorded only for a file that carries no exposure time; ``expected_exposure_s`` makes a file
+    whose exposure differs from it by more than ``rtol`` (relative) a FrameError; ``timestamp_s`` is the frame's
+    time on the caller's clock.
+    """
+
+    exposure_s: float | None = None
+    expected_exposure_s: float | None = None
+    rtol: float = DEFAULT_EXPOSURE_RTOL
+    timestamp_s: float = 0.0
+
+
+#: A reader's options when the caller knows nothing of the frame.
+NO_OPTIONS = ReadOptions()
+
+
+def frame_fields(
+    options: ReadOptions,
+    meta: Mapping[str, Any],
     reported_s: float | None,
-    exposure_s: float | None,
-    expected_exposure_s: float | None,
-    rtol: float,
+    iso: float | None,
     where: str,
-) -> tuple[float, str]:
-    """Pick the exposure to record: the file's metadata, else the caller's fallback; then check it."""
+    source: str | None,
+    extra: Mapping[str, object] | None = None,
+) -> dict[str, Any]:
+    """The Frame fields a file's metadata gives: exposure (s, the file's, else the caller's; checked), gain, camera.
+
+    Also the caller's time stamp, the ``source`` and ``extra`` with where the exposure came from and the ISO added.
+    """
     if reported_s is not None and math.isfinite(reported_s) and reported_s > 0:
-        value, source = float(reported_s), "metadata"
-    elif exposure_s is not None:
-        value, source = float(exposure_s), "caller"
+        value, how = float(reported_s), "metadata"
+    elif options.exposure_s is not None:
+        value, how = float(options.exposure_s), "caller"
     else:
         raise FrameError(f"{where}: the file carries no exposure time; pass exposure_s= (seconds) if you know it")
-    check_exposure(value, expected_exposure_s, where, rtol)
-    return value, source
+    check_exposure(value, options.expected_exposure_s, where, options.rtol)
+    return {
+        "exposure_s": value,
+        "gain": _gain_from_iso(iso),
+        "timestamp_s": options.timestamp_s,
+        "camera_id": camera_identity(meta),
+        "source": source,
+        "extra": {**(extra or {}), "exposure_source": how, "iso": iso},
+    }
 
 
 def _tiff_metadata(path: Path | io.BytesIO) -> dict[str, Any]:

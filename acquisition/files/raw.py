@@ -23,15 +23,7 @@ import numpy as np
 import numpy.typing as npt
 import rawpy
 
-from acquisition.files.metadata import (
-    DEFAULT_EXPOSURE_RTOL,
-    PathLike,
-    _check_file,
-    _gain_from_iso,
-    _resolve_exposure,
-    _tiff_metadata,
-    camera_identity,
-)
+from acquisition.files.metadata import NO_OPTIONS, PathLike, ReadOptions, _check_file, _tiff_metadata, frame_fields
 from acquisition.frame import Frame, FrameError
 
 RAW_EXTENSIONS = frozenset(
@@ -104,32 +96,33 @@ def _msg(exc: BaseException) -> str:
     return text
 
 
-def _refine(meta: Mapping[str, Any], iso: float, shutter: float) -> tuple[float, float]:
-    """Fill and sharpen LibRaw's ISO and shutter from the TIFF tags where the file has them."""
+def _raw_fields(
+    meta: Mapping[str, Any],
+    iso: float,
+    shutter: float,
+    options: ReadOptions,
+    where: str,
+    source: str | None,
+    extra: dict[str, object],
+) -> dict[str, Any]:
+    """``frame_fields`` of a RAW: LibRaw's ISO and shutter filled and sharpened from the TIFF tags ``meta``."""
     if not iso > 0:
         # LibRaw reads ISO only from the EXIF IFD, not from IFD0 where TIFF/EP also allows it.
         iso = meta.get("ISOSpeedRatings", 0.0)
     exact = meta.get("ExposureTime")
     if exact and shutter > 0 and abs(exact - shutter) <= 1e-6 * exact:
         shutter = exact  # LibRaw stores the RATIONAL as float32; the tag has it exactly (1/250, not 0.0040000002)
-    return iso, shutter
+    return frame_fields(options, meta, shutter if shutter > 0 else None, iso or None, where, source, extra)
 
 
-def read_raw(
-    path: PathLike,
-    *,
-    exposure_s: float | None = None,
-    expected_exposure_s: float | None = None,
-    rtol: float = DEFAULT_EXPOSURE_RTOL,
-    timestamp_s: float = 0.0,
-) -> Frame:
+def read_raw(path: PathLike, options: ReadOptions = NO_OPTIONS) -> Frame:
     """Read any RAW that rawpy reads as a linear, unscaled Frame in sensor counts; exposures in seconds.
 
     Bayer sensors give a ``raw`` mosaic with ``black_level`` as four values in ``cfa_pattern`` order;
     monochrome sensors a 2-D ``linear`` frame; already-demosaiced (LinearRaw) files an (H, W, C)
     ``linear`` frame with one black level per channel. X-Trans and non-RGB mosaics raise FrameError
-    (use ``demosaic_linear``). ``exposure_s`` is only a fallback for files without an exposure time;
-    ``expected_exposure_s`` makes a disagreeing file an error.
+    (use ``demosaic_linear``). ``options.exposure_s`` is only a fallback for files without an exposure time;
+    ``options.expected_exposure_s`` makes a disagreeing file an error.
     """
     p = _check_file(path, "RAW file")
     where = str(p)
@@ -150,19 +143,8 @@ def read_raw(
         except _RAW_ERRORS as exc:
             raise FrameError(f"{p}: cannot decode RAW data: {type(exc).__name__}: {_msg(exc)}") from exc
 
-    meta = _tiff_metadata(p)
-    iso, shutter = _refine(meta, iso, shutter)
-    value, source = _resolve_exposure(shutter if shutter > 0 else None, exposure_s, expected_exposure_s, rtol, where)
-    extra.update(exposure_source=source, iso=iso or None)
-    common: dict[str, Any] = {
-        "exposure_s": value,
-        "gain": _gain_from_iso(iso),
-        "white_level": white,
-        "timestamp_s": timestamp_s,
-        "camera_id": camera_identity(meta),
-        "source": where,
-        "extra": extra,
-    }
+    common = _raw_fields(_tiff_metadata(p), iso, shutter, options, where, where, extra)
+    common["white_level"] = white
     if data.ndim == 3:
         return Frame(data=data, kind="linear", black_level=tuple(blacks[:n_colors]), **common)
     if n_colors == 1:
@@ -176,13 +158,10 @@ def read_raw(
 
 def demosaic_linear(
     source: PathLike | rawpy.RawPy,
+    options: ReadOptions = NO_OPTIONS,
     *,
-    exposure_s: float | None = None,
-    expected_exposure_s: float | None = None,
-    rtol: float = DEFAULT_EXPOSURE_RTOL,
     half_size: bool = False,
     demosaic_algorithm: rawpy.DemosaicAlgorithm | None = rawpy.DemosaicAlgorithm.LINEAR,
-    timestamp_s: float = 0.0,
 ) -> Frame:
     """Demosaic a RAW (path or open ``rawpy.RawPy``) into a linear (H, W, 3) Frame; exposure in seconds.
 
@@ -191,23 +170,18 @@ def demosaic_linear(
     The default bilinear demosaic is linear in the signal; adaptive ones (AHD...) are not.
     """
     if isinstance(source, rawpy.RawPy):
-        return _demosaic_open(
-            source, None, exposure_s, expected_exposure_s, rtol, half_size, demosaic_algorithm, timestamp_s
-        )
+        return _demosaic_open(source, None, options, half_size, demosaic_algorithm)
     p = _check_file(source, "RAW file")
     with _open_raw(p) as raw:
-        return _demosaic_open(raw, p, exposure_s, expected_exposure_s, rtol, half_size, demosaic_algorithm, timestamp_s)
+        return _demosaic_open(raw, p, options, half_size, demosaic_algorithm)
 
 
 def _demosaic_open(
     raw: rawpy.RawPy,
     p: Path | None,
-    exposure_s: float | None,
-    expected_exposure_s: float | None,
-    rtol: float,
+    options: ReadOptions,
     half_size: bool,
     demosaic_algorithm: rawpy.DemosaicAlgorithm | None,
-    timestamp_s: float,
 ) -> Frame:
     where = str(p) if p is not None else "RAW image"
     try:
@@ -220,23 +194,11 @@ def _demosaic_open(
     except _RAW_ERRORS as exc:
         raise FrameError(f"{where}: cannot demosaic RAW: {type(exc).__name__}: {_msg(exc)}") from exc
     meta = _tiff_metadata(p) if p is not None else {}
-    iso, shutter = _refine(meta, iso, shutter)
-    value, source = _resolve_exposure(shutter if shutter > 0 else None, exposure_s, expected_exposure_s, rtol, where)
+    fields = _raw_fields(meta, iso, shutter, options, where, str(p) if p is not None else None, extra)
     # LibRaw scales by 65535 / (maximum - black) with its smallest black level (per-channel offsets are
     # subtracted on top), so this factor is exact for uniform black levels and within the spread otherwise.
-    extra.update(exposure_source=source, iso=iso or None, counts_per_output=(white - min(blacks)) / 65535.0)
-    return Frame(
-        data=np.ascontiguousarray(rgb),
-        kind="linear",
-        exposure_s=value,
-        gain=_gain_from_iso(iso),
-        black_level=0.0,
-        white_level=65535.0,
-        timestamp_s=timestamp_s,
-        camera_id=camera_identity(meta),
-        source=str(p) if p is not None else None,
-        extra=extra,
-    )
+    fields["extra"]["counts_per_output"] = (white - min(blacks)) / 65535.0
+    return Frame(data=np.ascontiguousarray(rgb), kind="linear", black_level=0.0, white_level=65535.0, **fields)
 
 
 def bin_bayer(frame: Frame) -> npt.NDArray[np.float64]:

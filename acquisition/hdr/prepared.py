@@ -1,6 +1,6 @@
 """What the linear HDR merge's pass reads, per frame, and which pass runs it: numpy or compiled.
 
-Holds ``_Prepared`` (the per-frame arrays and numbers, with a pixel subsample for the auto weighting
+Holds ``_Prepared`` (the per-frame arrays and numbers of ``small.Inputs``, with a pixel subsample for the auto weighting
 decision) and ``_prepare``, which works them out from a bracket: offsets (black levels or darks), noise terms
 and saturation thresholds. Small images (an ROI crop, below ``NUMPY_BELOW`` pixel values) run the numpy pass of
 :mod:`acquisition.hdr.small`; larger ones the compiled pass of :mod:`acquisition.hdr.kernel`, imported only
@@ -22,26 +22,15 @@ import numpy.typing as npt
 from acquisition.frame import Frame, FrameError
 from acquisition.hdr.bracket import DarkSpec, _black_map, _dark_offset, _find_dark, _min_black, describe_frame
 from acquisition.hdr.compiled import compiled
-from acquisition.hdr.small import NUMPY_BELOW, Pass, run_small, sum_and_predicted_iv
+from acquisition.hdr.small import NUMPY_BELOW, Inputs, Pass, run_small, sum_and_predicted_iv
 from acquisition.noise import SensorNoise
 
 F32 = npt.NDArray[np.float32]
 
 
 @dataclass(frozen=True)
-class _Prepared:
-    """Everything the pass needs, one entry per frame of the bracket."""
-
-    data: tuple[npt.NDArray[Any], ...]
-    offmaps: tuple[npt.NDArray[Any], ...] | None
-    off_s: npt.NDArray[np.float64]
-    thr_raw: npt.NDArray[np.float64]
-    expo: npt.NDArray[np.float64]
-    shot: npt.NDArray[np.float64]
-    cvar: npt.NDArray[np.float64]
-    shortest: int
-    longest: int
-    dark_thr: float
+class _Prepared(Inputs):
+    """Everything the pass needs, one entry per frame of the bracket, and the pass that runs it."""
 
     @property
     def small(self) -> bool:

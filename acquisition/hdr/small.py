@@ -10,7 +10,8 @@ in :mod:`acquisition.hdr.merge`.
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -20,48 +21,30 @@ F64 = npt.NDArray[np.float64]
 Pass = tuple[F32, F32, npt.NDArray[np.uint8], npt.NDArray[np.uint8]]
 
 
-class Inputs(Protocol):
-    """What a pass reads (:class:`acquisition.hdr.prepared._Prepared`): one entry per frame."""
+@dataclass(frozen=True)
+class Inputs:
+    """What a pass reads, one entry per frame (:class:`acquisition.hdr.prepared._Prepared` adds which pass runs)."""
 
-    @property
-    def data(self) -> tuple[npt.NDArray[Any], ...]:
-        """Each frame's pixel values, flat (uint16 or float32)."""
-
-    @property
-    def offmaps(self) -> tuple[npt.NDArray[Any], ...] | None:
-        """Each frame's per-pixel offset (counts, flat), or None: ``off_s``."""
-
-    @property
-    def off_s(self) -> F64:
-        """Each frame's offset (counts) where there are no maps."""
-
-    @property
-    def thr_raw(self) -> F64:
-        """Each frame's saturation threshold on the raw value (counts)."""
-
-    @property
-    def expo(self) -> F64:
-        """Each frame's exposure times gain (s)."""
-
-    @property
-    def shot(self) -> F64:
-        """Each frame's shot-noise variance per unit radiance (counts^2 per count/s)."""
-
-    @property
-    def cvar(self) -> F64:
-        """Each frame's variance at zero signal (counts^2), its dark's included."""
-
-    @property
-    def shortest(self) -> int:
-        """Index of the shortest frame."""
-
-    @property
-    def longest(self) -> int:
-        """Index of the longest frame."""
-
-    @property
-    def dark_thr(self) -> float:
-        """DARK below this signal in the longest frame (counts)."""
+    #: Each frame's pixel values, flat (uint16 or float32).
+    data: tuple[npt.NDArray[Any], ...]
+    #: Each frame's per-pixel offset (counts, flat), or None: ``off_s``.
+    offmaps: tuple[npt.NDArray[Any], ...] | None
+    #: Each frame's offset (counts) where there are no maps.
+    off_s: F64
+    #: Each frame's saturation threshold on the raw value (counts).
+    thr_raw: F64
+    #: Each frame's exposure times gain (s).
+    expo: F64
+    #: Each frame's shot-noise variance per unit radiance (counts^2 per count/s).
+    shot: F64
+    #: Each frame's variance at zero signal (counts^2), its dark's included.
+    cvar: F64
+    #: Index of the shortest frame.
+    shortest: int
+    #: Index of the longest frame.
+    longest: int
+    #: DARK below this signal in the longest frame (counts).
+    dark_thr: float
 
 
 #: Frames of fewer pixel values than this merge in numpy. At ROI sizes (a few hundred values) what the numpy pass

@@ -213,6 +213,24 @@ def grid_error(
     }  # fmt: skip
 
 
+#: Significant digits a renderer's measured error is kept to (``rounded_error``).
+ERROR_DIGITS = 4
+
+
+def rounded_error(error: dict[str, Any], digits: int = ERROR_DIGITS) -> dict[str, Any]:
+    """``grid_error``'s metrics (relative, dimensionless) to ``digits`` significant digits; the rest as it is.
+
+    Mitsuba's ``measured`` plugin reading one table gives them differing in their last bits from one process to the
+    next: they are a renderer's measured error, not exact numbers, and the files that hold them must not vary.
+    """
+
+    def r(x: float) -> float:
+        return float(f"{x:.{digits}g}")
+
+    scalars = {k: r(error[k]) for k in ("rms_rel", "rms_rel_cosine_weighted", "worst_rel")}
+    return {**error, **scalars, "rms_rel_per_channel": [r(x) for x in error["rms_rel_per_channel"]]}
+
+
 def _constant(value: Any) -> Any:
     arr = np.atleast_1d(np.asarray(value, dtype=np.float64))
     return (lambda _samples: arr.copy()) if arr.size > 1 else float(arr[0])

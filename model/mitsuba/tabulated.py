@@ -69,7 +69,7 @@ import numpy as np
 import numpy.typing as npt
 
 from model.base import BRDF
-from model.mitsuba.projection import grid_error
+from model.mitsuba.projection import grid_error, rounded_error
 from model.mitsuba.tensor_file import tensor_bytes
 from model.mitsuba.variant import pick_variant, use_variant
 from model.serialize import to_json_dict
@@ -401,8 +401,8 @@ def tabulate(model: BRDF, grid: TabulationGrid | None = None, *, variant: str | 
 
 
 def tabulated_error(model: BRDF, table: Tabulated, variant: str | None = None) -> dict[str, Any]:
-    """Mitsuba's ``measured`` plugin reading ``table`` against ``model``, on projection.py's grid (its metrics)."""
+    """Mitsuba's ``measured`` plugin reading ``table`` against ``model`` on projection.py's grid (rounded metrics)."""
     with tempfile.TemporaryDirectory(prefix="gonio-bsdf-") as tmp:
         path = table.write(Path(tmp) / "material.bsdf")
-        return grid_error(model, measured_bsdf(str(path)), variant, isotropic=table.isotropic)
+        return rounded_error(grid_error(model, measured_bsdf(str(path)), variant, isotropic=table.isotropic))
 

@@ -32,6 +32,7 @@ from rig.instrument.calibration_file import FILE_NAME, sha256_of, write_geometry
 from rig.instrument.camera_model import focal_length_px
 from rig.instrument.kinematics import Joints
 from rig.run.config.files import RigConfig
+from rig.run.config.fitted_for import fitted_for
 from rig.run.registry import provided_cameras
 from rig.run.session import instruments
 
@@ -155,7 +156,7 @@ def calibration_document(rig: RigConfig, fit: GeometryFit, board: ChArUcoBoard, 
         "captures": list(captures),
         "board": dataclasses.asdict(board) | {"coat_alpha": alpha, "mounted_by": description},
         "rig": {"path": str(rig_path), "name": rig.file.name, "layout": rig.geometry.layout,
-                "sha256": sha256_of(rig_path) if rig_path.is_file() else None},
+                "sha256": sha256_of(rig_path) if rig_path.is_file() else None, "geometry": fitted_for(rig.file)},
         "gonio_version": gonio_version(),
         "warnings": list(fit.warnings),
     }  # fmt: skip

@@ -7,7 +7,8 @@ Written by ``gonio calibrate geometry`` (``rig.alignment``), applied by a rig fi
 on a fixed-camera rig), each ``{"value": ..., "std_error": ...}`` (degrees, millimetres; the offset as
 [x, y, z] lists). Beside them: ``covariance`` and ``correlation`` of the fit's own parameters (``names``;
 the wedge as its x, y components), ``residuals`` (pixels, chi2), ``captures`` (the joints read back and what
-each frame showed), ``warnings``, and ``rig`` (the rig file's path and SHA-256 when it was calibrated).
+each frame showed), ``warnings``, and ``rig`` (the rig file's path and SHA-256 when it was calibrated, and
+``geometry``: the tables it was fitted for, ``rig.run.config.fitted_for``).
 """
 
 from __future__ import annotations
@@ -54,6 +55,8 @@ class GeometryCalibration:
     rig_sha256: str | None = None
     reduced_chi2: float | None = None
     warnings: tuple[str, ...] = ()
+    #: The rig file's tables it was fitted for (``rig.run.config.fitted_for``); None in a file older than the record.
+    rig_geometry: dict[str, Any] | None = None
 
     def snapshot(self) -> dict[str, Any]:
         """JSON-ready form for a run's manifest, so a resumed run corrects exactly as it started."""
@@ -136,6 +139,7 @@ def read_geometry_calibration(path: str | Path) -> GeometryCalibration:
     return GeometryCalibration(
         alignment, names, matrix, p, doc.get("created_utc"), rig.get("sha256"), residuals.get("reduced_chi2"),
         tuple(str(w) for w in doc.get("warnings", [])),
+        rig["geometry"] if isinstance(rig.get("geometry"), dict) else None,
     )  # fmt: skip
 
 

@@ -299,6 +299,7 @@ class SimulatedCamera:
         # Imported here: tifffile and rawpy serve only a camera that writes DNG files, and a run's start waits
         # for every import.
         from acquisition.files.dng import write_dng
+        from acquisition.files.metadata import ReadOptions
         from acquisition.files.raw import read_raw
 
         assert self.dng_dir is not None
@@ -306,7 +307,7 @@ class SimulatedCamera:
         path = self.dng_dir / f"{'dark' if dark else 'frame'}_{self._frames:06d}.dng"
         write_dng(path, frame, exposure_s=frame.exposure_s, iso=100.0 * frame.gain, camera_id=self.identity)
         try:
-            return read_raw(path, expected_exposure_s=frame.exposure_s, timestamp_s=frame.timestamp_s)
+            return read_raw(path, ReadOptions(expected_exposure_s=frame.exposure_s, timestamp_s=frame.timestamp_s))
         finally:
             if not self.keep_dng:
                 path.unlink(missing_ok=True)

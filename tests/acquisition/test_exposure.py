@@ -3,8 +3,9 @@ import math
 import numpy as np
 import pytest
 
+from acquisition.exposure.bracket import fixed_bracket
 from acquisition.exposure.metering import meter, saturated
-from acquisition.exposure.plan import evaluate_plan, fixed_bracket, plan_exposure
+from acquisition.exposure.plan import evaluate_plan, plan_exposure
 from acquisition.exposure.snr import pixel_snr, roi_snr
 from acquisition.exposure.spec import CameraTiming, ExposureError, RoiLevel
 from acquisition.noise import SensorNoise
@@ -330,3 +331,27 @@ def test_a_plan_is_the_evaluation_of_its_own_exposures_with_what_only_the_planne
         same = dataclasses.replace(evaluated, reached=plan.reached, expected_pixel_snr=plan.expected_pixel_snr,
                                    notes=plan.notes)  # fmt: skip
         assert same == plan
+
+
+def test_a_floor_keeps_a_large_rois_frames_long_enough_to_see_its_pixels() -> None:
+    from acquisition.exposure.snr import detection_exposure_s
+
+    level = RoiLevel(1.5e5, 1.4e5, 28080, 1.3e5)  # a 156 x 180 px ROI of a lit tile
+    cam = CameraTiming()
+    short = plan_exposure(level, NOISE, 400.0, cam, dark_frames=1)
+    # The mean reaches SNR 400 in a frame where a pixel at the mean has SNR ~2: most pixels are not detected.
+    assert pixel_snr(level.mean_dn_per_s, NOISE, short.exposures_s, dark_frames=1)[()] < 3.0
+    seen = detection_exposure_s([level], NOISE, 5.0, dark_frames=1)
+    assert seen is not None and pixel_snr(level.mean_dn_per_s, NOISE, [seen], dark_frames=1)[()] == pytest.approx(5.0)
+    lifted = plan_exposure(level, NOISE, 400.0, cam, dark_frames=1, shortest_s=seen)
+    assert lifted.exposures_s == (cam.ceil(seen),) and lifted.reached and lifted.expected_snr > 400.0
+    assert any("lengthened" in n for n in lifted.notes)
+    # The floor never pushes a frame past what the peak allows, and changes nothing where frames are longer.
+    capped = plan_exposure(level, NOISE, 400.0, cam, dark_frames=1, shortest_s=10.0)
+    assert max(capped.exposures_s) * (level.peak_dn_per_s + NOISE.dark_current_e_per_s / NOISE.e_per_dn) <= (
+        0.8 * NOISE.saturation_dn() * (1 + 1e-9)
+    )
+    assert plan_exposure(level, NOISE, 400.0, cam, dark_frames=1, shortest_s=1e-6) == short
+    assert detection_exposure_s([RoiLevel.uniform(0.0, 4)], NOISE, 5.0) is None
+    with pytest.raises(ValueError, match="shortest_s"):
+        plan_exposure(level, NOISE, 400.0, cam, shortest_s=-1.0)

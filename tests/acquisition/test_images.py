@@ -14,6 +14,7 @@ import tifffile
 
 from acquisition.files.dng import write_dng
 from acquisition.files.images import read_frame, read_tiff
+from acquisition.files.metadata import ReadOptions
 from acquisition.files.raw import (
     demosaic_linear,
     read_raw,
@@ -61,12 +62,12 @@ def test_exposure_disagreeing_with_the_request_is_an_error(tmp_path: Path) -> No
     with pytest.raises(
         FrameError, match=r"s\.dng: exposure 0\.004 s in the file disagrees with the requested 0\.008 s"
     ):
-        read_raw(path, expected_exposure_s=0.008)
+        read_raw(path, ReadOptions(expected_exposure_s=0.008))
     with pytest.raises(FrameError, match=r"requested 0\.008 s"):
-        demosaic_linear(path, expected_exposure_s=0.008)
-    assert read_raw(path, expected_exposure_s=0.00405).exposure_s == 0.004  # within the 5 % tolerance
+        demosaic_linear(path, ReadOptions(expected_exposure_s=0.008))
+    assert read_raw(path, ReadOptions(expected_exposure_s=0.00405)).exposure_s == 0.004  # within the 5 % tolerance
     with pytest.raises(FrameError, match="disagrees"):
-        read_raw(path, expected_exposure_s=0.00405, rtol=0.001)
+        read_raw(path, ReadOptions(expected_exposure_s=0.00405, rtol=0.001))
 
 
 def test_missing_exposure_metadata_needs_the_caller(tmp_path: Path) -> None:
@@ -81,11 +82,11 @@ def test_missing_exposure_metadata_needs_the_caller(tmp_path: Path) -> None:
     tifffile.imwrite(path, _mosaic((24, 24), 4095), photometric=32803, extratags=tags, metadata=None)
     with pytest.raises(FrameError, match=r"noexp\.dng: the file carries no exposure time; pass exposure_s="):
         read_raw(path)
-    frame = read_raw(path, exposure_s=0.25)
+    frame = read_raw(path, ReadOptions(exposure_s=0.25))
     assert frame.exposure_s == 0.25
     assert frame.extra["exposure_source"] == "caller"
     with pytest.raises(FrameError, match="disagrees"):
-        read_raw(path, exposure_s=0.25, expected_exposure_s=0.5)
+        read_raw(path, ReadOptions(exposure_s=0.25, expected_exposure_s=0.5))
 
 
 def test_unsupported_extension_names_file_and_extension(tmp_path: Path) -> None:
@@ -101,14 +102,14 @@ def test_linear_tiff_with_exif_exposure(tmp_path: Path) -> None:
     data = np.random.default_rng(1).integers(0, 65536, (20, 30, 3), dtype=np.uint16)
     path = tmp_path / "lin.tif"
     tifffile.imwrite(path, data, photometric="rgb", extratags=[(33434, "2I", 1, (1, 30), True)])
-    frame = read_frame(path, expected_exposure_s=1 / 30)
+    frame = read_frame(path, ReadOptions(expected_exposure_s=1 / 30))
     assert frame.kind == "linear"
     assert np.array_equal(frame.data, data)
     assert frame.exposure_s == pytest.approx(1 / 30)
     assert frame.white_level == 65535
     assert frame.black_level == 0.0
     with pytest.raises(FrameError, match=r"lin\.tif: exposure 0\.0333333 s in the file disagrees"):
-        read_frame(path, expected_exposure_s=0.1)
+        read_frame(path, ReadOptions(expected_exposure_s=0.1))
 
 
 def test_tiff_without_exposure_and_8bit_and_float(tmp_path: Path) -> None:
@@ -116,13 +117,13 @@ def test_tiff_without_exposure_and_8bit_and_float(tmp_path: Path) -> None:
     tifffile.imwrite(mono, np.arange(600, dtype=np.uint16).reshape(20, 30))
     with pytest.raises(FrameError, match=r"mono16\.tiff: the file carries no exposure time"):
         read_tiff(mono)
-    assert read_tiff(mono, exposure_s=0.1, black_level=12).black_level == 12.0
+    assert read_tiff(mono, ReadOptions(exposure_s=0.1), black_level=12).black_level == 12.0
     eight = tmp_path / "eight.tif"
     tifffile.imwrite(eight, np.zeros((20, 30, 3), np.uint8), photometric="rgb")
-    assert read_frame(eight, exposure_s=0.1).kind == "8bit"
+    assert read_frame(eight, ReadOptions(exposure_s=0.1)).kind == "8bit"
     flt = tmp_path / "float.tif"
     tifffile.imwrite(flt, np.ones((20, 30), np.float32))
-    frame = read_frame(flt, exposure_s=0.1)
+    frame = read_frame(flt, ReadOptions(exposure_s=0.1))
     assert frame.kind == "linear"
     assert frame.white_level == np.inf
 
@@ -142,7 +143,7 @@ def test_png_is_8bit_rgb_and_needs_an_exposure(tmp_path: Path) -> None:
     cv2.imwrite(str(path), bgr)
     with pytest.raises(FrameError, match=r"shot\.png: the file carries no exposure time"):
         read_frame(path)
-    frame = read_frame(path, exposure_s=0.02)
+    frame = read_frame(path, ReadOptions(exposure_s=0.02))
     assert frame.kind == "8bit"
     assert frame.white_level == 255
     assert np.all(frame.data[..., 2] == 200)
@@ -174,11 +175,11 @@ def test_corrupt_png_is_a_frame_error(tmp_path: Path) -> None:
     path = tmp_path / "broken.png"
     path.write_bytes(b"\x89PNG\r\n\x1a\n" + b"\x00" * 20)
     with pytest.raises(FrameError, match=r"broken\.png: OpenCV cannot decode"):
-        read_frame(path, exposure_s=0.1)
+        read_frame(path, ReadOptions(exposure_s=0.1))
 
 
 def test_16bit_png_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "deep.png"
     cv2.imwrite(str(path), np.zeros((8, 8), np.uint16))
     with pytest.raises(FrameError, match=r"deep\.png: uint16 image"):
-        read_frame(path, exposure_s=0.1)
+        read_frame(path, ReadOptions(exposure_s=0.1))

@@ -9,6 +9,7 @@ import pytest
 import rawpy
 
 from acquisition.files.dng import write_dng
+from acquisition.files.metadata import ReadOptions
 from acquisition.files.raw import (
     bin_bayer,
     cfa_pattern_string,
@@ -47,7 +48,7 @@ def test_kodak_binned_and_demosaiced() -> None:
     assert binned[0, 0, 0] == g[0, 1]  # GRBG: R at (0, 1)
     assert binned[0, 0, 1] == (g[0, 0] + g[1, 1]) / 2
     assert binned[0, 0, 2] == g[1, 0]
-    rgb = demosaic_linear(KODAK, expected_exposure_s=0.00435)
+    rgb = demosaic_linear(KODAK, ReadOptions(expected_exposure_s=0.00435))
     assert rgb.kind == "linear"
     assert rgb.shape == (512, 768, 3)
     assert rgb.data.dtype == np.uint16

@@ -9,17 +9,25 @@ zero and limits. Every `gonio ...` command quoted in a comment must parse.
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import re
 import shlex
+import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from acquisition.flatfield import FlatField
+from acquisition.noise import SensorNoise
 from gonio.cli import build_parser
 from rig.instrument.clock import ManualClock
 from rig.instrument.links.dynamixel_table import X_SERIES
 from rig.instrument.links.grbl import AXIS_LETTERS, GrblLink
+from rig.run.calibrate import CALIBRATION_FORMAT
 from rig.run.config.files import RigConfig, load_rig, load_sweep
+from rig.run.session import capture_settings
 from simulator.grbl.server import open_virtual_grbl
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
@@ -111,3 +119,37 @@ def test_a_grbl_rig_homes_and_reaches_its_zeros_and_limits_on_the_controller_its
             for pose in ({a.name: a.min_deg for a in rig.axes}, {a.name: a.max_deg for a in rig.axes}):
                 link.move_to(pose)
                 assert link.wait_in_position(120.0) == pytest.approx(pose, abs=0.05)
+
+
+def _without_table(text: str, name: str) -> str:
+    """A TOML file's text without table ``[name]`` (its header to the next table's)."""
+    lines = text.splitlines(keepends=True)
+    start = next(i for i, line in enumerate(lines) if line.startswith(f"[{name}]"))
+    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("[")), len(lines))
+    return "".join(lines[:start] + lines[end:])
+
+
+def test_the_raw_rig_edited_as_its_comment_says_runs_with_its_camera_calibration(tmp_path: Path):
+    # The comment said to point calibration and flat_field at the files; gonio run then refused the rig (exit 2),
+    # for [camera.noise] beside a calibration. Every edit the comment asks for is made, and nothing else.
+    (tmp_path / "examples").mkdir()
+    rig_path = Path(shutil.copy(EXAMPLES / "rig_simulated_raw.toml", tmp_path / "examples"))
+    text = rig_path.read_text()
+    comment = " ".join(line.lstrip("# ").strip() for line in text.splitlines() if line.startswith("#"))
+    assert "point [camera] calibration and flat_field at the files it writes" in comment
+    for key in ("calibration", "flat_field"):
+        text = re.sub(rf"^# ({key} = )", r"\1", text, count=1, flags=re.M)
+    for table in re.findall(r"delete the \[([\w.]+)\] table", comment):
+        text = _without_table(text, table)
+    rig_path.write_text(text)
+    calib = tmp_path / "calib"  # what `--out calib/` makes, which the lines name relative to the rig file
+    calib.mkdir()
+    fitted = SensorNoise(e_per_dn=3.1, read_noise_e=4.5)
+    doc = {"format": CALIBRATION_FORMAT, "noise": dataclasses.asdict(fitted)}
+    (calib / "camera_calibration.json").write_text(json.dumps(doc))
+    ones = np.ones((48, 48), dtype=np.float32)
+    FlatField(ones, 0 * ones, "raw", "RGGB", 2, 1000.0, 0.0, 0.0).save(calib / "flat_field.npz")
+    rig = load_rig(rig_path)
+    assert rig.file.camera.calibration is not None and rig.file.camera.flat_field is not None
+    settings = capture_settings(rig, load_sweep(EXAMPLES / "sweep_in_plane.toml"))  # what gonio run reads first
+    assert settings.noise == fitted and settings.flat_field is not None

@@ -43,6 +43,7 @@ from rig.instrument.sample_surface import SampleShape
 from rig.run import registry
 from rig.run.config.camera import Camera as CameraTable
 from rig.run.config.camera import camera_keys
+from rig.run.config.fitted_for import changes, fitted_for
 from rig.run.config.schema import AxisTable, RigFile, SweepFile
 
 FloatArray = npt.NDArray[np.float64]
@@ -285,12 +286,17 @@ class RigConfig:
         return self.calibration.alignment if self.calibration is not None else Alignment()
 
     def calibration_warnings(self) -> list[str]:
-        """What is doubtful about the calibration in force: older than the rig file, residuals beyond noise."""
+        """What is doubtful about the calibration in force: fitted for another geometry, residuals beyond noise."""
         cal = self.calibration
         if cal is None:
             return []
         out = [f"the geometry calibration says: {w}" for w in cal.warnings]
-        if cal.created_utc and self.path.is_file():
+        if cal.rig_geometry is not None:
+            differ = changes(cal.rig_geometry, fitted_for(self.file))
+            if differ:
+                out.append(f"{self.path}'s geometry is not what its geometry calibration {cal.path} was fitted for "
+                           f"({'; '.join(differ)}): calibrate it again (gonio calibrate geometry)")  # fmt: skip
+        elif cal.created_utc and self.path.is_file():  # a calibration older than the record: the file's time
             made = datetime.datetime.fromisoformat(cal.created_utc)
             changed = datetime.datetime.fromtimestamp(self.path.stat().st_mtime, datetime.UTC)
             if changed > made:

@@ -4,7 +4,8 @@ The exposure plan comes from the previous point's light level (``RoiLevel`` per 
 the numbers the journal keeps, so a resumed run plans exactly what an uninterrupted one did) or, with no
 level yet or when the planned bracket clipped, from metering test frames. A fixed list of exposures skips
 planning. The previous point only predicts this one's level: where this point turns out darker and its
-dimmest channel falls short of the SNR goal, a second bracket planned from its own level tops it up.
+dimmest channel falls short of the SNR goal, a second bracket planned from its own level tops it up. No frame is
+planned so short that a pixel at a channel's ROI mean goes undetected (``DETECT_SNR``), however large the ROI.
 A dark ROI (most pixels undetected, or a mean within its noise of zero: a black frame, a capped lens, a
 point far darker than the last) is metered afresh before it is accepted; one still dark after metering is
 kept, with ``RoiReading.dark`` set and a note, so the table can say so.
@@ -23,6 +24,7 @@ import numpy.typing as npt
 from acquisition.cfa import colour_planes, counts_above_black, reduce_hdr_roi
 from acquisition.exposure.metering import meter
 from acquisition.exposure.plan import plan_exposure
+from acquisition.exposure.snr import detection_exposure_s
 from acquisition.exposure.spec import CameraTiming, RoiLevel
 from acquisition.flatfield import FlatField
 from acquisition.frame import Camera, Frame
@@ -54,6 +56,10 @@ class CaptureSettings:
 
 #: A reading whose dimmest channel reaches less than this fraction of the SNR goal is topped up.
 TOP_UP_BELOW = 0.95
+#: Per-pixel SNR at each channel's ROI mean that a bracket's frames reach. The merge flags a pixel dark below 3
+#: sigma of its zero-signal noise, and a reading whose pixels are mostly dark is dark; a large ROI's mean reaches
+#: its SNR goal in frames too short for that, and a lit ROI (a reference tile) would read as dark.
+DETECT_SNR = 5.0
 
 
 @dataclass(frozen=True)
@@ -192,7 +198,8 @@ def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | No
     notes: tuple[str, ...] = ()
     if previous is not None and previous.peak > 0:
         plan = plan_exposure(previous.roi_level(), settings.noise, settings.target_snr, settings.timing,
-                             max_frames=settings.max_frames, dark_frames=settings.dark_frames)  # fmt: skip
+                             max_frames=settings.max_frames, dark_frames=settings.dark_frames,
+                             shortest_s=_seen_s(previous, settings))  # fmt: skip
         frames = _frames(camera, plan.exposures_s)
         try:
             check = _roi_check(settings, frames)
@@ -204,7 +211,11 @@ def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | No
             if check.roi.dark:
                 notes = ("the bracket planned from the previous point left the ROI dark: metered afresh",)
             elif not check.roi.lower_bound and not np.any(check.roi.n_flagged):
-                return _topped_up(camera, settings, frames, check)
+                reading = _topped_up(camera, settings, frames, check)
+                # The check merged without darks, whose noise raises the final merge's dark threshold.
+                if not reading.roi.dark:
+                    return reading
+                notes = ("the bracket planned from the previous point left the ROI dark: metered afresh",)
             else:
                 notes = ("the bracket planned from the previous point clipped: metered afresh",)
 
@@ -213,12 +224,18 @@ def take_reading(camera: Camera, settings: CaptureSettings, previous: Level | No
 
     metered = meter(take_roi, settings.noise, settings.target_snr, settings.timing,
                     start_exposure_s=settings.first_exposure_s, dark_frames=settings.dark_frames,
-                    max_frames=settings.max_frames)  # fmt: skip
+                    max_frames=settings.max_frames, detect_snr=DETECT_SNR)  # fmt: skip
     reading = _capture(camera, settings, metered.plan.exposures_s, metered.test_exposures_s, notes + metered.notes)
     if reading.roi.dark:
         still = "the ROI is dark even after metering (no light detected): kept, flagged dark"
         return dataclasses.replace(reading, notes=(*reading.notes, still))
     return reading
+
+
+def _seen_s(level: Level, settings: CaptureSettings) -> float | None:
+    """The shortest frame (s) in which a pixel at each channel's mean of ``level`` has SNR ``DETECT_SNR``."""
+    return detection_exposure_s(level.roi_level(), settings.noise, DETECT_SNR, settings.timing.gain,
+                                settings.dark_frames)  # fmt: skip
 
 
 def snr_reached(reading: RoiReading) -> float:
@@ -248,7 +265,8 @@ def _topped_up(camera: Camera, settings: CaptureSettings, frames: list[Frame], f
         # Inverse-variance merging adds SNRs in quadrature: plan only the part still missing.
         missing = float(np.sqrt(settings.target_snr**2 - reached**2))
         plan = plan_exposure(level.roi_level(), settings.noise, missing, settings.timing,
-                             max_frames=settings.max_frames, dark_frames=settings.dark_frames)  # fmt: skip
+                             max_frames=settings.max_frames, dark_frames=settings.dark_frames,
+                             shortest_s=_seen_s(level, settings))  # fmt: skip
         frames = frames + _frames(camera, plan.exposures_s)
         notes = (f"SNR {reached:.0f} of {settings.target_snr:g} from the bracket planned on the previous point: "
                  f"topped up with {len(plan.exposures_s)} more frame(s)",)  # fmt: skip

@@ -8,7 +8,15 @@ import pytest
 from model import CookTorrance, Lambert, Phong
 from model.fit.spec import LAMBERT, ggx_conductor
 from model.mitsuba.materials import to_mitsuba
-from model.mitsuba.projection import GRID_DPHI_DEG, GRID_PHI_I_DEG, GRID_THETA_DEG, grid_error, grid_pairs, warm_start
+from model.mitsuba.projection import (
+    GRID_DPHI_DEG,
+    GRID_PHI_I_DEG,
+    GRID_THETA_DEG,
+    grid_error,
+    grid_pairs,
+    rounded_error,
+    warm_start,
+)
 from tests.mitsuba_helpers import require_variant
 
 pytestmark = pytest.mark.mitsuba
@@ -35,6 +43,17 @@ def test_a_native_mapping_measures_as_float32_rounding(variant: str) -> None:
     assert e["rms_rel"] < 1e-6 and e["pairs"] == len(grid_pairs()[0]) and variant in e["evaluated_by"]
     far = grid_error(m, {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.4, 0.25, 0.1]}}, variant)
     assert far["rms_rel"] == pytest.approx(0.5, rel=1e-5)  # half the albedo: half the BRDF everywhere
+
+
+def test_a_rounded_error_keeps_four_significant_digits_of_each_metric_and_the_rest_as_it_is() -> None:
+    # Two processes' readings of one table by Mitsuba's measured plugin (the README run's): one number once rounded.
+    error = {"rms_rel": 0.01560573123485755, "rms_rel_per_channel": [0.0123456789, 1.23456789],
+             "rms_rel_cosine_weighted": 0.00987654, "worst_rel": 12.3456, "pairs": 17, "worst_at_deg": {"theta_i": 5.0}}
+    again = dict(error, rms_rel=0.015605731215887883)
+    r = rounded_error(error)
+    assert r == rounded_error(again) and list(r) == list(error)
+    assert r == {**error, "rms_rel": 0.01561, "rms_rel_per_channel": [0.01235, 1.235],
+                 "rms_rel_cosine_weighted": 0.009877, "worst_rel": 12.35}  # fmt: skip
 
 
 def test_the_warm_start_is_the_source_itself_for_cook_torrance_only() -> None:

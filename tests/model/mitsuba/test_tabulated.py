@@ -232,6 +232,8 @@ def test_the_stated_error_is_mitsubas_on_the_projection_grid_and_beats_the_proje
     assert e["pairs"] == 17 * 17 * 19 * 3 and "mitsuba" in e["evaluated_by"]
     assert 0.0 < e["rms_rel"] < 0.12 and 0.0 < e["rms_rel_cosine_weighted"] < e["rms_rel"]  # the projection: 124 %
     assert e["worst_rel"] >= e["rms_rel"]
+    # To 4 significant digits: Mitsuba's measured plugin varies the last bits from one process to the next.
+    assert all(v == float(f"{v:.4g}") for v in (e["rms_rel"], e["worst_rel"], *e["rms_rel_per_channel"]))
 
 
 def test_a_diffuse_model_tabulates_closely_with_the_ggx_and_uniform_ndf() -> None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -67,8 +66,8 @@ def test_a_rig_file_applies_the_calibration_and_plan_shows_it(
     calibrated: tuple[Path, dict], capsys: pytest.CaptureFixture[str]
 ) -> None:
     tmp, doc = calibrated
+    # The file the calibration was made of, edited after it to apply it: newer than it, the same geometry.
     rig_path = _rig_file(tmp, MISALIGNMENT, extra=f'[geometry]\ncalibration = "{tmp / "geometry_calibration.json"}"\n')
-    os.utime(rig_path, (0, 0))  # older than the calibration: no staleness warning
     rig = load_rig(rig_path)
     assert rig.calibration is not None and rig.alignment.light_zero_deg == pytest.approx(doc["light_zero_deg"]["value"])
     sweep = tmp / "sweep.toml"
@@ -85,10 +84,11 @@ def test_a_rig_file_applies_the_calibration_and_plan_shows_it(
     out = capsys.readouterr()
     # The calibration in force, as the file has it (12 captures know the light's zero to ~0.04 deg: its digits vary).
     assert "geometry calibration" in out.out and f"zeros (deg) light {doc['light_zero_deg']['value']:+.3f}" in out.out
-    assert "changed" not in out.err
-    rig_path.touch()  # the rig file is now newer than its calibration
+    assert "fitted for" not in out.err and "changed" not in out.err  # (12 captures leave correlations warned of)
+    extra = f'[geometry]\ncalibration = "{tmp / "geometry_calibration.json"}"\ncamera_radius_m = 0.45\n'
+    _rig_file(tmp, MISALIGNMENT, extra=extra)  # the camera's arm shortened: not the rig it was fitted for
     assert main(["plan", str(sweep), "--rig", str(rig_path)]) == 0
-    assert "after its geometry calibration" in capsys.readouterr().err
+    assert "geometry.camera_radius_m = 0.45 (was default)" in capsys.readouterr().err
 
 
 def tmp_path_factory_dir(tmp: Path) -> Path:

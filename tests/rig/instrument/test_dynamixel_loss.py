@@ -72,30 +72,36 @@ def test_a_bus_losing_most_replies_is_a_hardware_fault_naming_the_loss(
     link.shutdown()
 
 
-def test_a_reply_later_than_the_widest_window_is_waited_for_within_the_patience(
-    rig: tuple[VirtualDynamixelBus, ManualClock],
-) -> None:
+@pytest.fixture
+def fast_link(rig: tuple[VirtualDynamixelBus, ManualClock]) -> Iterator[tuple[VirtualDynamixelBus, DynamixelLink]]:
+    """A link with a 1 ms latency timer (the SDK's window ~4 ms, the widest 16 x that); clears servo 2's faults."""
     bus, clock = rig
-    # A 1 ms latency timer: the SDK's window is ~4 ms and the widest 16 x that, ~70 ms. A servo that answers after
-    # 200 ms is there, on a host too slow for that window (a pty-served device under load): the bus keeps
-    # asking at the widest window for its whole patience instead of reporting no servo after ~130 ms.
     link = DynamixelLink.open(bus.port, make_axes(), clock=clock, latency_timer_ms=1.0, retries=1)
-    assert link.bus.reply_patience_s >= 1.0
-    bus.servo(2).faults.reply_delay_s = 0.2
     try:
-        assert set(link.read_positions()) == set(NAMES)
-        assert link.bus.comm_retries_used >= 1
+        yield bus, link
     finally:
         bus.servo(2).faults.clear()
         link.shutdown()
 
 
-def test_late_replies_widen_the_window_and_replies_on_time_narrow_it_again(
-    rig: tuple[VirtualDynamixelBus, ManualClock],
+def test_a_reply_later_than_the_widest_window_is_waited_for_within_the_patience(
+    fast_link: tuple[VirtualDynamixelBus, DynamixelLink],
 ) -> None:
-    bus, clock = rig
-    # A 1 ms latency timer gives a ~4 ms window; a servo that answers after 30 ms of wall time is late.
-    link = DynamixelLink.open(bus.port, make_axes(), clock=clock, latency_timer_ms=1.0, retries=1)
+    bus, link = fast_link
+    # A servo that answers after 200 ms is there, on a host too slow for the widest window (~70 ms; a pty-served
+    # device under load): the bus keeps asking at the widest window for its whole patience instead of reporting
+    # no servo after ~130 ms.
+    assert link.bus.reply_patience_s >= 1.0
+    bus.servo(2).faults.reply_delay_s = 0.2
+    assert set(link.read_positions()) == set(NAMES)
+    assert link.bus.comm_retries_used >= 1
+
+
+def test_late_replies_widen_the_window_and_replies_on_time_narrow_it_again(
+    fast_link: tuple[VirtualDynamixelBus, DynamixelLink],
+) -> None:
+    bus, link = fast_link
+    # A servo that answers after 30 ms of wall time is late for the ~4 ms window.
     link.bus.reply_patience_s = 60.0
     bus.servo(2).faults.reply_delay_s = 0.03
     link.read_positions()
@@ -108,4 +114,3 @@ def test_late_replies_widen_the_window_and_replies_on_time_narrow_it_again(
         link.read_positions()
     assert link.bus.window_scale == 1.0
     assert link.bus.replies_lost == 0  # a late reply is no loss
-    link.shutdown()

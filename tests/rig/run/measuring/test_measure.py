@@ -95,3 +95,22 @@ def test_the_check_before_a_top_up_merges_the_roi_alone_to_the_same_reading(kind
     np.testing.assert_allclose(check.roi.mean, whole.roi.mean, rtol=1e-12)
     np.testing.assert_allclose(check.roi.std_error_propagated, whole.roi.std_error_propagated, rtol=1e-12)
     assert check.level == whole.level and check.hdr.radiance.shape[:2] == (8, 8)
+
+
+def test_a_large_lit_roi_is_read_with_its_pixels_seen_not_as_dark() -> None:
+    # A 160 x 160 px ROI (a 512 px frame's default ROI is this large): its mean reaches SNR 400 in a frame of a few
+    # counts a pixel, below what the merge detects in one pixel, and the reading was called dark (a lit reference
+    # tile was a camera fault). Each channel's mean pixel must be seen; blue is a quarter of the others.
+    noise = SensorNoise()
+    scene = Scene(0.05)
+    cam = SimulatedCamera(lambda: np.broadcast_to(scene.radiance * COLOUR, (160, 160, 3)).copy(), noise=noise, seed=5)
+    settings = CaptureSettings(noise=noise, timing=CameraTiming(cam.min_exposure_s, cam.max_exposure_s),
+                               target_snr=400.0, max_frames=5, dark_frames=1)  # fmt: skip
+    metered = take_reading(cam, settings, None)
+    again = take_reading(cam, settings, metered.level)  # planned from the previous point
+    scene.radiance = 0.05 / 3  # a point three times darker: its check without darks passed, the reading was dark
+    darker = take_reading(cam, settings, metered.level)
+    for r in (metered, again, darker):
+        # Nearly every pixel seen (the mean pixel 2 sigma above the merge's dark threshold), and the SNR goal met.
+        assert not r.roi.dark and np.all(r.roi.n_dark < 0.03 * r.roi.n_used), (r.roi.n_dark, r.exposures_s, r.notes)
+        assert snr_reached(r.roi) >= TOP_UP_BELOW * settings.target_snr

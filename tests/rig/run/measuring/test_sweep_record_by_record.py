@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from acquisition.cfa import HdrImage
-from acquisition.roi import Box, RoiReading
+from acquisition.roi import Box, RoiError, RoiReading
 from rig.run.backends.hardware import dynamixel_options
 from rig.run.config.files import parse, rig_config, sweep_config
 from rig.run.config.schema import RigFile, SweepFile
@@ -36,15 +36,17 @@ from tests.acquisition.test_exposure_oracle import (
     reference_merged_variance,
 )
 from tests.rig.run.measuring.test_check_shortcuts import reference_roi_check
-from tests.rig.run.measuring.test_reading_shortcuts import reference_level_of, reference_reduce_roi
+from tests.rig.run.measuring.test_reading_shortcuts import reference_level_of, reference_reading
 from tests.rig.run.measuring.test_runner_rounding import reference as reference_round
 from tests.rig.run.measuring.test_runner_rounding import reference_as_list
 from tests.rig.run.storage.test_store_jsonable import reference_jsonable
 
 
 def reference_reduce_hdr_roi(hdr: HdrImage, roi: Box, *, on_flagged: Any = "exclude") -> RoiReading:
-    return reference_reduce_roi(hdr.radiance, hdr.variance, roi, flags=hdr.saturated, on_flagged=on_flagged,
-                                dark=hdr.dark)  # fmt: skip
+    got = reference_reading(hdr.radiance, hdr.variance, roi, flags=hdr.saturated, dark=hdr.dark, policy=on_flagged)
+    if isinstance(got, str):  # the reference gives the message the code under test must raise
+        raise RoiError(got)
+    return got
 
 
 def reference_shoot(camera: Any, exposure_s: float) -> Any:
