@@ -221,9 +221,7 @@ class SimulatedRig:
 
     def moving(self) -> bool:
         """Whether any joint is mid-move now (a frame taken then is blurred along the motion)."""
-        if self.bus is None:
-            return False
-        return any(self.bus.servo(int(a.address)).state().profile_ongoing for a in self.axes)
+        return self.bus is not None and any(self.bus.servo(int(a.address)).state().profile_ongoing for a in self.axes)
 
     def __enter__(self) -> SimulatedRig:
         return self.start()
@@ -305,10 +303,7 @@ class SimulatedRig:
         return (1.0 + self.spec.light_drift_per_s * t) * (1.0 + warm)
 
     def _patch(self, full_frame: bool = False, like: SensorPatch | None = None) -> SensorPatch:
-        """What the camera sees: the flat-field source while one is in use, else the rendered ROI's window.
-
-        ``like``: render the window of that patch (a frame's later sub-exposure keeps its first one's pixels).
-        """
+        """What the camera sees: the flat-field source in use, else the ROI's window (``like``'s, for sub-exposures)."""
         if self.flat_source.state != "off":
             return self.flat_source.patch()
         if full_frame or (like is not None and like.sensor is None):

@@ -193,7 +193,7 @@ class Scanner:
                     warned = True
                     self._too_fast(blur, step, exposure, speed)
                 self._reach(joint, float(points[pos].joints.as_dict()[joint]) - direction * blur / 2, direction, speed)
-                got = self._frame(pos, points[pos], level, exposure)
+                got = self._frame(pos, points[pos], level, exposure, (joint, direction * speed))
                 if got is None:  # clipped: this point and the rest are measured at rest
                     break
                 level = got.level
@@ -222,8 +222,10 @@ class Scanner:
                 return
             clock.sleep(min(max(remaining / speed, 1e-4), POLL_S))
 
-    def _frame(self, pos: int, point: PlannedPoint, level: Level, exposure: float) -> Reading | None:
-        """One frame at ``exposure`` (s) while the arm moves, journaled as ``point``; None if it clipped."""
+    def _frame(self, pos: int, point: PlannedPoint, level: Level, exposure: float,
+               velocity: tuple[str, float]) -> Reading | None:  # fmt: skip
+        """One frame at ``exposure`` (s) while ``velocity`` (joint, deg/s) moves the arm, journaled as ``point``;
+        None if it clipped."""
         h = self.host
         camera = _Stamped(h.camera, self._stamp, h.clock)
         reading = h._read(level, dataclasses.replace(h.capture, exposures_s=(exposure,)), cast(Camera, camera))
@@ -237,10 +239,10 @@ class Scanner:
             return None
         t0 = end - frame.exposure_s
         mid = interpolate(before, after, 0.5 * (t0 + end))
-        first, last = interpolate(before, after, t0), interpolate(before, after, end)
         joints = Joints.from_dict({**{k: float(v) for k, v in point.joints.as_dict().items()}, **mid})
-        # The travel during the exposure, as _uncertainty reads it: variance (speed x exposure)^2 / 12.
-        travel = {k: mid[k] + (last[k] - first[k]) for k in mid}
+        # The travel during the exposure, as _uncertainty reads it: variance (speed x exposure)^2 / 12. From the
+        # device's speed: two read-backs a short frame apart often read the same encoder count.
+        travel = {**mid, velocity[0]: mid[velocity[0]] + velocity[1] * frame.exposure_s}
         d = aligned_forward(h.geometry, joints, h.alignment)
         offset = h.now() - h.clock.now()
         h.store.append({
