@@ -13,6 +13,7 @@ faster than real time, for external clients. Only one simulated rig runs per pro
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tempfile
 import threading
@@ -190,6 +191,7 @@ class SimulatedRig:
                 camera_id=f"gonio simulated camera ({self.spec.material.__class__.__name__}, {self.material.plugin})",
                 kind="linear" if self.spec.camera_output == "linear" else "raw", response=self.spec.response,
                 dng_dir=dng_dir if self.spec.camera_output == "dng" else None, keep_dng=self.spec.dng_dir is not None,
+                moving=self.moving,
             )  # fmt: skip
             _active.append(self)
         return self
@@ -216,6 +218,10 @@ class SimulatedRig:
         if self.bus is None:
             raise SimulatedRigError("the simulated rig is not running")
         return self.bus.servo(int(axis.address)).physical_position_ticks()
+
+    def moving(self) -> bool:
+        """Whether any joint is mid-move now (a frame taken then is blurred along the motion)."""
+        return self.bus is not None and any(self.bus.servo(int(a.address)).state().profile_ongoing for a in self.axes)
 
     def __enter__(self) -> SimulatedRig:
         return self.start()
@@ -296,12 +302,15 @@ class SimulatedRig:
         warm = self.spec.lamp_drift * -math.expm1(-t / self.spec.lamp_warmup_s) if self.spec.lamp_drift else 0.0
         return (1.0 + self.spec.light_drift_per_s * t) * (1.0 + warm)
 
-    def _patch(self, full_frame: bool = False) -> SensorPatch:
-        """What the camera sees: the flat-field source while one is in use, else the rendered ROI's window."""
+    def _patch(self, full_frame: bool = False, like: SensorPatch | None = None) -> SensorPatch:
+        """What the camera sees: the flat-field source in use, else the ROI's window (``like``'s, for sub-exposures)."""
         if self.flat_source.state != "off":
             return self.flat_source.patch()
-        if full_frame:
+        if full_frame or (like is not None and like.sensor is None):
             return SensorPatch(self._radiance(full_frame=True))
+        if like is not None:
+            (x0, y0), (h, w) = like.origin_xy, like.radiance.shape[:2]
+            return dataclasses.replace(like, radiance=self._radiance(crop=(x0, y0, x0 + w, y0 + h)))
         # The controller picks its ROI for the rig as drawn; the scene rendered is what the rig really is.
         box = self.renderer.roi(world_pose(self.spec.geometry, self.joints_now()))
         return roi_patch(lambda crop: self._radiance(crop=crop), box, self.spec.camera.resolution,

@@ -31,7 +31,7 @@ from rig.run.config.files import (
     saved_rig,
     sweep_config,
 )
-from rig.run.config.schema import SweepFile, run_metadata
+from rig.run.config.schema import DEFAULT_SCAN_SPEED_DEG_S, SweepFile, run_metadata
 from rig.run.storage.journal import check_records
 from rig.run.storage.store import JOURNAL, RunStore, RunStoreError
 
@@ -69,6 +69,7 @@ def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
         roi=cam.roi if cam.backend != "simulated" else None,
         flat_field=camera_flat_field(rig),
         image=_image_settings(rig, sweep),
+        scan_speed_deg_s=(cap.scan_speed_deg_s or DEFAULT_SCAN_SPEED_DEG_S) if cap.motion == "continuous" else None,
     )
 
 

@@ -52,6 +52,8 @@ class CaptureSettings:
     flat_field: FlatField | None = None
     #: Image mode (``[capture] mode = "image"``): every k x k tile on the sample a reading; None: point mode.
     image: ImageSettings | None = None
+    #: Continuous motion (``[capture] motion = "continuous"``): the scanning joint's speed in deg/s; None: stop and go.
+    scan_speed_deg_s: float | None = None
 
 
 #: A reading whose dimmest channel reaches less than this fraction of the SNR goal is topped up.

@@ -57,6 +57,7 @@ from rig.run.measuring.image_capture import TILE_KEYS, plan_shot, whole_frames
 from rig.run.measuring.measure import CaptureSettings, Level, Reading, take_reading
 from rig.run.measuring.motion_guard import MotionGuard, UnsafeMove
 from rig.run.measuring.progress import Eta, format_eta
+from rig.run.measuring.scan import Scanner
 from rig.run.measuring.warm_up import COMPILING, notify_before_compiling, warm_up
 from rig.run.planning.plan import Plan, PlannedPoint
 from rig.run.storage.journal import check_records
@@ -267,18 +268,26 @@ class Runner:
                 self._return_to_last_pose(records)
             self._continue_time(records)
             self.eta.start(len(self.plan.points) - len(done))
+            speed = self.capture.scan_speed_deg_s
+            scan = Scanner(self, speed) if speed is not None else None
+            swept: set[int] = set()  # indices a scan measured in this call
             for pos, point in enumerate(self.plan.points):
                 if pos in slots and pos not in ref_done and point.index not in done:
                     last_ref = self._reference(pos, last_ref)
-                if point.index in done:
+                if point.index in done or point.index in swept:
                     continue
                 reading = self._point(pos, point, level)
-                level = reading.level
-                self.eta.point_done()
+                level, scanned = reading.level, [pos]
+                if scan is not None:  # continuous motion: the points a scan from here reaches, measured moving
+                    level, more = scan.follow(pos, level, done, slots)
+                    swept.update(self.plan.points[p].index for p in more)
+                    scanned += more
+                for _ in scanned:
+                    self.eta.point_done()
                 if self.options.progress:  # the bar's text, only where there is a bar to show it
                     bar.set_postfix_str(f"{format_eta(self.eta.remaining_s())}, {self._postfix(point, reading)}",
                                         refresh=False)  # fmt: skip
-                bar.update(1)
+                bar.update(len(scanned))
             end = len(self.plan.points)
             if end in slots and end not in ref_done:
                 self._reference(end, last_ref)
