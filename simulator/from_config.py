@@ -61,6 +61,7 @@ def spec_from(rig: RigConfig, *, camera: CameraSpec | None = None) -> SimRigSpec
         backlash_deg=mis.backlash_deg,
         camera_output=sim.camera_output,
         response=response,
+        sample_shape=rig.sample_shape,
     )
 
 

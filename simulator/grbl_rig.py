@@ -97,6 +97,10 @@ class SimulatedGrblRig(SimulatedRig):
             coordinate -= self.controller.driven_direction[letter] * lag
         return coordinate * axis.units_per_degree
 
+    def moving(self) -> bool:
+        """Whether the steppers run now (GRBL's Run or Jog state): a frame taken then is blurred along the motion."""
+        return self.grbl is not None and self.controller.state.split(":")[0] in ("Run", "Jog", "Home")
+
     @property
     def port(self) -> str:
         """Device path of the virtual controller's serial port."""

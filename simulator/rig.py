@@ -13,6 +13,7 @@ faster than real time, for external clients. Only one simulated rig runs per pro
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tempfile
 import threading
@@ -36,6 +37,7 @@ from rig.instrument.clock import Clock, ManualClock, ScaledClock
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints, world_pose
 from rig.instrument.links.dynamixel import DynamixelLink, DynamixelOptions
+from rig.instrument.sample_surface import FLAT, SampleShape
 from rig.run.config.files import default_axes
 from simulator.camera.pixels import PixelResponse
 from simulator.camera.simulated import CameraOptics, SensorPatch, SimulatedCamera
@@ -103,6 +105,9 @@ class SimRigSpec:
         The sensor's hidden vignetting, pixel response non-uniformity and non-linearity.
     dng_dir:
         Where "dng" frames are written and kept; None: a temporary folder, each file removed once read.
+    sample_shape:
+        The sample's surface (``[sample]``): flat, or a sphere or cylinder rendered as such. The reference tile
+        and the calibration board swapped in for it are flat whatever it is.
     """
 
     geometry: RigGeometry = field(default_factory=RigGeometry)
@@ -127,6 +132,7 @@ class SimRigSpec:
     camera_output: Literal["linear", "raw", "dng"] = "linear"
     response: PixelResponse = field(default_factory=PixelResponse)
     dng_dir: Path | None = None
+    sample_shape: SampleShape = FLAT
 
     def resolved_axes(self) -> tuple[Axis, ...]:
         """The axes, defaulted from the geometry, checked to cover every joint of the layout."""
@@ -150,7 +156,8 @@ class SimulatedRig:
         self.axes = self.spec.resolved_axes()
         self.clock: Clock = ManualClock() if self.spec.time_scale is None else ScaledClock(self.spec.time_scale)
         self.material: MitsubaMaterial = to_mitsuba(self.spec.material)
-        self.renderer = RadianceRenderer(self.spec.geometry, self.spec.light, self.spec.camera)
+        self.renderer = RadianceRenderer(self.spec.geometry, self.spec.light, self.spec.camera,
+                                         shape=self.spec.sample_shape)  # fmt: skip
         self.bus: VirtualDynamixelBus | None = None
         self.camera: SimulatedCamera | None = None
         self.renders = 0
@@ -159,6 +166,7 @@ class SimulatedRig:
         self._showing: Hashable = self.spec.material
         self._reading: int | None = None
         self._shown: MitsubaMaterial | dict[str, Any] = self.material
+        self._surface: SampleShape = self.spec.sample_shape  # what is in view: the sample's, or a flat swap-in
         self._reference_material = to_mitsuba(Lambert(self.spec.reference_albedo))
         self.flat_source = SimulatedFlatSource(self.spec.camera.resolution, self.spec.noise, self.spec.optics)
         self._dng_tmp: tempfile.TemporaryDirectory[str] | None = None
@@ -183,6 +191,7 @@ class SimulatedRig:
                 camera_id=f"gonio simulated camera ({self.spec.material.__class__.__name__}, {self.material.plugin})",
                 kind="linear" if self.spec.camera_output == "linear" else "raw", response=self.spec.response,
                 dng_dir=dng_dir if self.spec.camera_output == "dng" else None, keep_dng=self.spec.dng_dir is not None,
+                moving=self.moving,
             )  # fmt: skip
             _active.append(self)
         return self
@@ -209,6 +218,10 @@ class SimulatedRig:
         if self.bus is None:
             raise SimulatedRigError("the simulated rig is not running")
         return self.bus.servo(int(axis.address)).physical_position_ticks()
+
+    def moving(self) -> bool:
+        """Whether any joint is mid-move now (a frame taken then is blurred along the motion)."""
+        return self.bus is not None and any(self.bus.servo(int(a.address)).state().profile_ongoing for a in self.axes)
 
     def __enter__(self) -> SimulatedRig:
         return self.start()
@@ -258,13 +271,16 @@ class SimulatedRig:
         self._reading = reading if reference else None
         if reference:
             self._showing, self._shown = Lambert(self.spec.reference_albedo), self._reference_material
+            self._surface = FLAT
         else:
             self._showing, self._shown = self.spec.material, self.material
+            self._surface = self.spec.sample_shape
 
     def show_material(self, key: Hashable, material: dict[str, Any]) -> None:
         """Put any Mitsuba material in view in place of the sample (``key`` names it for caches and noise)."""
         self._reading = None
         self._showing, self._shown = key, material
+        self._surface = FLAT  # a board or tile swapped in for the sample is flat
 
     def state_key(self) -> tuple[object, ...]:
         """What the camera's noise stream is drawn for: where the joints stand, what is in view, which reading."""
@@ -286,12 +302,15 @@ class SimulatedRig:
         warm = self.spec.lamp_drift * -math.expm1(-t / self.spec.lamp_warmup_s) if self.spec.lamp_drift else 0.0
         return (1.0 + self.spec.light_drift_per_s * t) * (1.0 + warm)
 
-    def _patch(self, full_frame: bool = False) -> SensorPatch:
-        """What the camera sees: the flat-field source while one is in use, else the rendered ROI's window."""
+    def _patch(self, full_frame: bool = False, like: SensorPatch | None = None) -> SensorPatch:
+        """What the camera sees: the flat-field source in use, else the ROI's window (``like``'s, for sub-exposures)."""
         if self.flat_source.state != "off":
             return self.flat_source.patch()
-        if full_frame:
+        if full_frame or (like is not None and like.sensor is None):
             return SensorPatch(self._radiance(full_frame=True))
+        if like is not None:
+            (x0, y0), (h, w) = like.origin_xy, like.radiance.shape[:2]
+            return dataclasses.replace(like, radiance=self._radiance(crop=(x0, y0, x0 + w, y0 + h)))
         # The controller picks its ROI for the rig as drawn; the scene rendered is what the rig really is.
         box = self.renderer.roi(world_pose(self.spec.geometry, self.joints_now()))
         return roi_patch(lambda crop: self._radiance(crop=crop), box, self.spec.camera.resolution,
@@ -306,7 +325,8 @@ class SimulatedRig:
             crop = self.renderer.roi(world_pose(self.spec.geometry, joints))
         self.renders += 1
         # The render's own sampling noise is part of each rig's noise: seeded like the sensor's.
-        image = self.renderer.render(true, self._shown, crop=crop, key=repr(self._showing), seed=self.spec.seed)
+        image = self.renderer.render(true, self._shown, crop=crop, key=repr(self._showing), seed=self.spec.seed,
+                                     shape=self._surface)  # fmt: skip
         factor = self.lamp_factor()
         return np.asarray(image, dtype=np.float64) * factor if factor != 1.0 else np.asarray(image, dtype=np.float64)
 

@@ -31,7 +31,7 @@ from rig.run.config.files import (
     saved_rig,
     sweep_config,
 )
-from rig.run.config.schema import SweepFile, run_metadata
+from rig.run.config.schema import DEFAULT_SCAN_SPEED_DEG_S, SweepFile, run_metadata
 from rig.run.storage.journal import check_records
 from rig.run.storage.store import JOURNAL, RunStore, RunStoreError
 
@@ -42,6 +42,7 @@ if TYPE_CHECKING:
     from rig.run.backends.base import Instruments, StartPose
     from rig.run.measuring.measure import CaptureSettings
     from rig.run.measuring.runner import ReferenceSettings, RunOptions, RunSummary
+    from rig.run.measuring.tiles import ImageSettings
     from rig.run.planning.plan import Plan
 
 
@@ -67,6 +68,20 @@ def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
         # The simulated camera renders only the ROI, so what it delivers is the ROI already.
         roi=cam.roi if cam.backend != "simulated" else None,
         flat_field=camera_flat_field(rig),
+        image=_image_settings(rig, sweep),
+        scan_speed_deg_s=(cap.scan_speed_deg_s or DEFAULT_SCAN_SPEED_DEG_S) if cap.motion == "continuous" else None,
+    )
+
+
+def _image_settings(rig: RigConfig, sweep: SweepConfig) -> ImageSettings | None:
+    """Image mode's tiles (``[capture] mode = "image"``) on the rig's sensor, None in point mode."""
+    from rig.run.measuring.tiles import DEFAULT_TILE_PX, ImageSettings
+
+    cap = sweep.file.capture
+    if cap.mode != "image":
+        return None
+    return ImageSettings(
+        tile_px=cap.tile_px or DEFAULT_TILE_PX, resolution=rig.file.camera.resolution, shape=rig.sample_shape
     )
 
 

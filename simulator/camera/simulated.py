@@ -45,6 +45,11 @@ LIGHT_M_S = 299_792_458.0
 #: Windows written as DNG are at least this many pixels a side (LibRaw refuses fewer than 22).
 DNG_MIN_SIDE = 24
 
+#: Sub-exposures a frame taken while the scene moves is rendered at (at the middles of equal slices of the
+#: exposure) and averaged: the motion blur of a continuous scan. Few, because each is a render; a frame of a scan
+#: spans a small fraction of the sweep's step, over which the radiance is near linear in the angle.
+BLUR_SAMPLES = 4
+
 
 @dataclass(frozen=True, eq=False)
 class SensorPatch:
@@ -160,6 +165,7 @@ class SimulatedCamera:
         stray_counts_per_s: float = 0.0,
         response: PixelResponse | None = None,
         keep_dng: bool = True,
+        moving: Callable[[], bool] | None = None,
     ) -> None:
         if not 0 < min_exposure_s < max_exposure_s:
             raise ValueError(
@@ -175,6 +181,9 @@ class SimulatedCamera:
         if dng_dir is not None and kind != "raw":
             raise ValueError(f"dng_dir needs kind='raw' (DNG holds a CFA mosaic), got kind={kind!r}")
         self._source = source
+        #: Whether the scene moves now (the simulated rig: a servo mid-move); a frame then averages BLUR_SAMPLES
+        #: renders along the exposure, the source called with ``like=`` the frame's first window.
+        self._moving = moving
         self.noise = noise or SensorNoise()
         self.optics = optics or CameraOptics()
         self.kind: FrameKind = kind
@@ -236,8 +245,29 @@ class SimulatedCamera:
         with self._lock:
             patch = self._patch()
             rate = np.asarray(patch.radiance, dtype=np.float64) * self.optics.counts_per_radiance(self.noise)
+            if self._moving is not None and self._moving():
+                return self._expose(self._blurred(patch), patch, dark=False)
             # Ambient light reaches the sensor whenever the shutter is open, whatever the lamp does.
             return self._expose(rate + self.stray_counts_per_s if self.stray_counts_per_s else rate, patch, dark=False)
+
+    def _blurred(self, patch: SensorPatch) -> Callable[[], npt.NDArray[np.float64]]:
+        """The counts/s of a frame along the motion: renders at BLUR_SAMPLES times inside the exposure, averaged.
+
+        Called at the exposure's start; advances the clock to the last sub-exposure's middle, so the scene is
+        rendered where the servos physically are then (``_expose`` sleeps the rest of the exposure).
+        """
+
+        def rate() -> npt.NDArray[np.float64]:
+            t, start = self._settings.exposure_s, self.clock.now()
+            total = np.zeros_like(np.asarray(patch.radiance, dtype=np.float64))
+            for k in range(BLUR_SAMPLES):
+                self.clock.sleep(max(0.0, start + (k + 0.5) * t / BLUR_SAMPLES - self.clock.now()))
+                sub = self._source(like=patch)
+                total += np.asarray(sub.radiance if isinstance(sub, SensorPatch) else sub, dtype=np.float64)
+            out = total / BLUR_SAMPLES * self.optics.counts_per_radiance(self.noise)
+            return out + self.stray_counts_per_s if self.stray_counts_per_s else out
+
+        return rate
 
     def capture_dark(self) -> Frame:
         """One frame with the shutter closed at the current settings (black, dark current, offsets, noise)."""
@@ -272,10 +302,13 @@ class SimulatedCamera:
         self._state = (digest, n)
         return np.random.default_rng([self._seed, int(digest, 16), n])
 
-    def _expose(self, rate: npt.NDArray[np.float64], patch: SensorPatch, *, dark: bool) -> Frame:
+    def _expose(self, rate: npt.NDArray[np.float64] | Callable[[], npt.NDArray[np.float64]], patch: SensorPatch, *,
+                dark: bool) -> Frame:  # fmt: skip
         t, g = self._settings.exposure_s, self._settings.gain
         rng = self._generator(dark)
         start = self.clock.now()
+        along = callable(rate)  # a frame along the motion: the clock runs during its renders
+        rate = rate() if callable(rate) else rate
         # The sensor's CFA phase at the window's origin: the pattern is the sensor's, not the window's.
         pattern = shift_pattern(self.cfa_pattern, *patch.origin_xy) if self.kind == "raw" else None
         shape = rate.shape[:2] if self.kind == "raw" else rate.shape
@@ -289,7 +322,7 @@ class SimulatedCamera:
             frame = capture(rate, self.noise, t, rng, gain=g, kind=self.kind, cfa_pattern=pattern,
                             tone_curve=self.tone_curve, camera_id=self.identity, timestamp_s=start,
                             offset_dn=offsets, **light)  # type: ignore[arg-type]  # fmt: skip
-        self.clock.sleep(t)
+        self.clock.sleep(max(0.0, start + t - self.clock.now()) if along else t)
         self._frames += 1
         if self.dng_dir is not None:
             frame = self._through_dng(frame, dark)

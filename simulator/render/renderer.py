@@ -33,9 +33,10 @@ import numpy.typing as npt
 from model.mitsuba.variant import VariantUnavailable, pick_variant, unavailable_reason, use_variant
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics_types import RigPose
+from rig.instrument.sample_surface import FLAT, SampleShape
 from simulator.render.scene import build_scene
 from simulator.render.spec import Box, BSDFLike, CameraSpec, LightSpec, bsdf_dict, check_box
-from simulator.render.view import _unit, _vec3, camera_view, pixel_on_sample, roi_box
+from simulator.render.view import _unit, _vec3, camera_view, pixel_hits, pixel_on_sample, roi_box
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -101,11 +102,12 @@ def roi_radiance(
     *,
     variant: str | None = None,
     seed: int = 0,
+    shape: SampleShape = FLAT,
 ) -> FloatArray:
     """Mean radiance (3,) in W/(m^2 sr) over the camera's ROI, rendering only the ROI's pixels."""
-    roi = roi_box(geometry, pose, light, camera)
+    roi = roi_box(geometry, pose, light, camera, shape)
     image = render_radiance(
-        build_scene(geometry, pose, bsdf, light, camera, crop=roi),
+        build_scene(geometry, pose, bsdf, light, camera, crop=roi, shape=shape),
         variant or resolve_variant(None, camera.variant),
         seed,
         evaluated_calls=needs_evaluated_calls(bsdf),
@@ -114,7 +116,8 @@ def roi_radiance(
 
 
 def beam_profile(
-    geometry: RigGeometry, pose: RigPose, light: LightSpec, camera: CameraSpec, crop: Box | None = None
+    geometry: RigGeometry, pose: RigPose, light: LightSpec, camera: CameraSpec, crop: Box | None = None,
+    shape: SampleShape = FLAT,
 ) -> FloatArray:
     """The lamp's relative irradiance on the sample point each pixel sees, (H, W) (the crop's size if cropped).
 
@@ -124,7 +127,11 @@ def beam_profile(
     """
     x0, y0, x1, y1 = crop if crop is not None else (0, 0, *camera.resolution)
     py, px = np.mgrid[y0:y1, x0:x1] + 0.5
-    p, _ = pixel_on_sample(camera_view(geometry, pose, camera), pose, px, py)
+    view = camera_view(geometry, pose, camera)
+    if shape.kind == "flat":  # the plane beyond the square too: an edge pixel's centre may lie just off it
+        p, _ = pixel_on_sample(view, pose, px, py)
+    else:  # a pixel that misses renders black whatever this factor says (its filler point is the centre)
+        p = pixel_hits(view, geometry, pose, shape, px, py).point_m
     src = _vec3("light_position_m", pose.light_position_m)
     axis = _unit(_vec3("aim_m", pose.aim()) - src)
     to_p = p - src
@@ -166,7 +173,8 @@ class RadianceRenderer:
     25 MB; an ROI crop a few kB), least recently used first out. Poses are keyed after rounding to
     ``decimals`` (default 6: micrometres and microradians), so servo read-backs that agree to that
     precision share a render. Returned images are read-only views of the cache; copy before writing.
-    ``variant`` forces a Mitsuba variant, else ``camera.variant`` is preferred.
+    ``variant`` forces a Mitsuba variant, else ``camera.variant`` is preferred. ``shape`` is the sample's
+    surface: it places the default ROI, and a render draws it unless told another (a flat reference tile).
     """
 
     def __init__(
@@ -179,6 +187,7 @@ class RadianceRenderer:
         maxsize: int = 64,
         max_bytes: int = 256 * 2**20,
         decimals: int = 6,
+        shape: SampleShape = FLAT,
     ) -> None:
         if maxsize < 1:
             raise ValueError(f"maxsize = {maxsize!r}, expected at least 1 render")
@@ -191,6 +200,7 @@ class RadianceRenderer:
         self.maxsize = maxsize
         self.max_bytes = max_bytes
         self.decimals = decimals
+        self.shape = shape
         self._bytes = 0
         self._cache: OrderedDict[tuple[Any, ...], FloatArray] = OrderedDict()
         self._rois: OrderedDict[tuple[Any, ...], Box] = OrderedDict()
@@ -222,15 +232,20 @@ class RadianceRenderer:
         camera: CameraSpec | None = None,
         key: str | None = None,
         seed: int = 0,
+        shape: SampleShape | None = None,
     ) -> FloatArray:
-        """Radiance image in W/(m^2 sr), (H, W, 3) or the crop's size; ``key`` names the material for the cache."""
+        """Radiance image in W/(m^2 sr), (H, W, 3) or the crop's size; ``key`` names the material for the cache.
+
+        ``shape`` draws another surface than the renderer's own (a flat reference tile in front of a sphere).
+        """
         light = light if light is not None else self.light
         camera = camera if camera is not None else self.camera
+        shape = shape if shape is not None else self.shape
         if crop is not None:
             crop = check_box(crop, camera.resolution, "crop")
         variant = resolve_variant(self.variant, camera.variant)
         cache_key = (pose_key(pose, self.decimals), key if key is not None else material_key(bsdf),
-                     light, camera, crop, camera.spp, variant, seed)
+                     light, camera, crop, camera.spp, variant, seed, shape)
         with self._lock:
             cached = self._cache.get(cache_key)
             if cached is not None:
@@ -238,10 +253,10 @@ class RadianceRenderer:
                 self.hits += 1
                 return cached
             self.misses += 1
-        scene = build_scene(self.geometry, pose, bsdf, light, camera, crop)
+        scene = build_scene(self.geometry, pose, bsdf, light, camera, crop, shape)
         image = render_radiance(scene, variant, seed, evaluated_calls=needs_evaluated_calls(bsdf))
         if light.falloff > 0:
-            image = image * beam_profile(self.geometry, pose, light, camera, crop)[..., None]
+            image = image * beam_profile(self.geometry, pose, light, camera, crop, shape)[..., None]
         image.setflags(write=False)
         with self._lock:
             if cache_key not in self._cache:
@@ -266,7 +281,7 @@ class RadianceRenderer:
             if box is not None:
                 self._rois.move_to_end(key)
                 return box
-        box = roi_box(self.geometry, pose, light, camera)
+        box = roi_box(self.geometry, pose, light, camera, self.shape)
         with self._lock:
             self._rois[key] = box
             while len(self._rois) > self.maxsize:

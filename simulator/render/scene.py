@@ -8,6 +8,10 @@ the arm axis). What is modelled, and what is not ("model only what the scene req
   ``pose.sample_centre_m``. Mitsuba builds the BSDF's shading frame from the same axes (s along local x),
   so the BSDF local frame is the kinematics' local frame: phi angles and anisotropic materials agree.
   The rectangle is one-sided for ordinary BSDFs: seen or lit from behind it renders black.
+- A curved sample (``rig.instrument.sample_surface``) is Mitsuba's ``sphere``, its pole on the bitangent, or
+  its open ``cylinder``, its axis along the bitangent, placed as that module places them (the top touching
+  the sample centre). Mitsuba's shading frame on both has its s axis along pole/axis x normal, which is the
+  module's tangent: the BRDF's local frame is the one the angles are measured in there too.
 - One light at ``pose.light_position_m``: an isotropic ``point`` emitter, or a ``spot`` aimed at the
   aim point (``pose.aim()``, the arms' axis); both are delta lights. A point light of ``LightSpec.size_m``
   > 0 is a Lambertian disk of that diameter facing the aim point, with the same on-axis intensity.
@@ -38,6 +42,7 @@ import numpy.typing as npt
 from rig.instrument.camera_model import up_for
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics_types import RigPose
+from rig.instrument.sample_surface import FLAT, SampleShape
 from simulator.render.spec import Box, BSDFLike, CameraSpec, LightSpec, bsdf_dict, check_box
 from simulator.render.view import _unit, _vec3, camera_view
 
@@ -95,6 +100,32 @@ def sample_to_world(geometry: RigGeometry, pose: RigPose) -> FloatArray:
     return m
 
 
+def sample_shape_dict(geometry: RigGeometry, pose: RigPose, shape: SampleShape) -> dict[str, Any]:
+    """The sample's Mitsuba shape (no BSDF): a rectangle, or the sphere or open cylinder of ``shape``."""
+    if shape.kind == "flat":
+        return {"type": "rectangle", "to_world": _transform(sample_to_world(geometry, pose))}
+    r = shape.radius_m
+    normal, bitangent = _vec3("sample_normal", pose.sample_normal), _vec3("sample_bitangent", pose.sample_bitangent)
+    centre = _vec3("sample_centre_m", pose.sample_centre_m) - r * normal
+    if shape.kind == "sphere":
+        # Local z (Mitsuba's pole, whose longitude gives the s axis) on the bitangent; (n, t, b) is right-handed.
+        m = np.eye(4)
+        m[:3, 0], m[:3, 1], m[:3, 2] = r * normal, r * _vec3("sample_tangent", pose.sample_tangent), r * bitangent
+        m[:3, 3] = centre
+        return {"type": "sphere", "to_world": _transform(m)}
+    half = 0.5 * geometry.sample_height_m
+    return {"type": "cylinder", "p0": (centre - half * bitangent).tolist(), "p1": (centre + half * bitangent).tolist(),
+            "radius": r}  # fmt: skip
+
+
+def _extent(geometry: RigGeometry, shape: SampleShape) -> float:
+    """How far (m) the sample reaches from its centre: the square's half-diagonal, or the curved body's far side."""
+    half_diagonal = 0.5 * math.hypot(geometry.sample_width_m, geometry.sample_height_m)
+    if shape.kind == "flat":
+        return half_diagonal
+    return max(half_diagonal, math.hypot(2.0 * shape.radius_m, 0.5 * geometry.sample_height_m))
+
+
 def build_scene(
     geometry: RigGeometry,
     pose: RigPose,
@@ -102,11 +133,12 @@ def build_scene(
     light: LightSpec,
     camera: CameraSpec,
     crop: Box | None = None,
+    shape: SampleShape = FLAT,
 ) -> dict[str, Any]:
     """The Mitsuba scene dict of the rig at one pose (metres, W/sr); ``crop`` renders only that pixel box."""
     view = camera_view(geometry, pose, camera)
     distance = float(np.linalg.norm(view.origin - _vec3("sample_centre_m", pose.sample_centre_m)))
-    half_diagonal = 0.5 * math.hypot(geometry.sample_width_m, geometry.sample_height_m)
+    half_diagonal = _extent(geometry, shape)
     w, h = camera.resolution
     film: dict[str, Any] = {
         "type": "hdrfilm",
@@ -135,10 +167,6 @@ def build_scene(
             "film": film,
             "sampler": {"type": camera.sampler, "sample_count": camera.spp, "seed": camera.seed},
         },
-        "sample": {
-            "type": "rectangle",
-            "to_world": _transform(sample_to_world(geometry, pose)),
-            "bsdf": bsdf_dict(bsdf),
-        },
+        "sample": {**sample_shape_dict(geometry, pose, shape), "bsdf": bsdf_dict(bsdf)},
         "light": _emitter(geometry, pose, light),
     }

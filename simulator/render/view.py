@@ -3,7 +3,10 @@
 ``camera_view`` reproduces the ``perspective`` sensor that ``simulator.render.scene.build_scene`` places (as
 the controller's ``rig.instrument.camera_model``, which it builds on), so
 world points can be projected to pixels (and pixels cast back onto the sample) without Mitsuba; the
-default ROI is the largest centred box whose pixels all see the central part of the sample.
+default ROI is the largest centred box whose pixels all see the central part of the sample. On a curved
+sample (``rig.instrument.sample_surface``) the central part is where the surface's normal lies within the
+angle the flat sample's central part spans seen from the camera, around the normal the image centre sees:
+the ROI's readings then mix as wide a range of directions as a flat sample's do.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import numpy.typing as npt
 from rig.instrument.camera_model import CameraView, aimed_camera, focal_length_px
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics_types import RigPose
+from rig.instrument.sample_surface import FLAT, SampleShape, SurfaceHits, surface_hits
 from simulator.render.spec import Box, CameraSpec, LightSpec
 
 FloatArray = npt.NDArray[np.float64]
@@ -60,8 +64,48 @@ def pixel_on_sample(view: CameraView, pose: RigPose, px: npt.ArrayLike, py: npt.
     return p, uv
 
 
+def pixel_hits(view: CameraView, geometry: RigGeometry, pose: RigPose, shape: SampleShape,
+               px: npt.ArrayLike, py: npt.ArrayLike) -> SurfaceHits:  # fmt: skip
+    """Where pixel rays (continuous pixel coordinates, any shape) meet the sample's surface: hits (..., 3) in metres."""
+    x, y = np.broadcast_arrays(np.asarray(px, dtype=np.float64), np.asarray(py, dtype=np.float64))
+    hits = surface_hits(shape, geometry, pose, view.origin, view.ray(x, y).reshape(-1, 3))
+    return SurfaceHits(hits.point_m.reshape(*x.shape, 3), hits.normal.reshape(*x.shape, 3),
+                       hits.tangent.reshape(*x.shape, 3), hits.hit.reshape(x.shape))  # fmt: skip
+
+
+def _curved_mask(geometry: RigGeometry, pose: RigPose, camera: CameraSpec,
+                 shape: SampleShape) -> tuple[npt.NDArray[np.bool_], FloatArray, int, int]:  # fmt: skip
+    """A curved sample's central region: pixels seeing normals within the flat region's angular span; points."""
+    view = camera_view(geometry, pose, camera)
+    k = math.sqrt(camera.roi_fraction)
+    half = 0.5 * k * min(geometry.sample_width_m, geometry.sample_height_m)
+    spread = math.atan2(half, float(np.linalg.norm(view.origin - pose.aim())))
+    centre = pixel_hits(view, geometry, pose, shape, 0.5 * view.width, 0.5 * view.height)
+    top = centre.point_m if bool(centre.hit) else _vec3("sample_centre_m", pose.sample_centre_m)
+    normal = centre.normal if bool(centre.hit) else _vec3("sample_normal", pose.sample_normal)
+    # The cap of normals within `spread` stays within the arc R * spread of the top: its box bounds the window.
+    reach = 2.0 * shape.radius_m * spread + 1e-9
+    axes = (_vec3("sample_tangent", pose.sample_tangent), _vec3("sample_bitangent", pose.sample_bitangent))
+    corners = [top + su * reach * axes[0] + sv * reach * axes[1] for su in (-1.0, 1.0) for sv in (-1.0, 1.0)]
+    x0, y0, x1, y1 = _window(view, np.array(corners))
+    py, px = np.mgrid[y0:y1, x0:x1] + 0.5
+    hits = pixel_hits(view, geometry, pose, shape, px, py)
+    mask = hits.hit & (hits.normal @ normal >= math.cos(spread))
+    return mask, hits.point_m, x0, y0
+
+
+def _window(view: CameraView, corners: FloatArray) -> Box:
+    """The pixel box around projected corners (one pixel's margin), always holding the image's central pixels."""
+    pix = view.project(corners)
+    x0 = max(0, min(int(np.floor(pix[:, 0].min())) - 1, (view.width - 1) // 2))
+    x1 = min(view.width, max(int(np.ceil(pix[:, 0].max())) + 1, view.width // 2 + 1))
+    y0 = max(0, min(int(np.floor(pix[:, 1].min())) - 1, (view.height - 1) // 2))
+    y1 = min(view.height, max(int(np.ceil(pix[:, 1].max())) + 1, view.height // 2 + 1))
+    return x0, y0, x1, y1
+
+
 def _roi_mask(
-    geometry: RigGeometry, pose: RigPose, light: LightSpec, camera: CameraSpec
+    geometry: RigGeometry, pose: RigPose, light: LightSpec, camera: CameraSpec, shape: SampleShape = FLAT
 ) -> tuple[npt.NDArray[np.bool_], int, int]:
     """Pixels whose centre sees the central ``roi_fraction`` of the sample (and of a spot); window origin.
 
@@ -70,20 +114,20 @@ def _roi_mask(
     """
     view = camera_view(geometry, pose, camera)
     centre = _vec3("sample_centre_m", pose.sample_centre_m)
-    k = math.sqrt(camera.roi_fraction)  # area fraction -> linear fraction
-    half = (0.5 * k * geometry.sample_width_m, 0.5 * k * geometry.sample_height_m)
-    corners = [centre + su * half[0] * _vec3("sample_tangent", pose.sample_tangent)
-               + sv * half[1] * _vec3("sample_bitangent", pose.sample_bitangent)
-               for su in (-1.0, 1.0) for sv in (-1.0, 1.0)]
-    pix = view.project(np.array(corners))
-    x0 = max(0, min(int(np.floor(pix[:, 0].min())) - 1, (view.width - 1) // 2))
-    x1 = min(view.width, max(int(np.ceil(pix[:, 0].max())) + 1, view.width // 2 + 1))
-    y0 = max(0, min(int(np.floor(pix[:, 1].min())) - 1, (view.height - 1) // 2))
-    y1 = min(view.height, max(int(np.ceil(pix[:, 1].max())) + 1, view.height // 2 + 1))
-    py, px = np.mgrid[y0:y1, x0:x1] + 0.5
-    p, uv = pixel_on_sample(view, pose, px, py)
+    k = math.sqrt(camera.roi_fraction)
+    if shape.kind != "flat":
+        mask, p, x0, y0 = _curved_mask(geometry, pose, camera, shape)
+    else:
+        half = (0.5 * k * geometry.sample_width_m, 0.5 * k * geometry.sample_height_m)
+        corners = [centre + su * half[0] * _vec3("sample_tangent", pose.sample_tangent)
+                   + sv * half[1] * _vec3("sample_bitangent", pose.sample_bitangent)
+                   for su in (-1.0, 1.0) for sv in (-1.0, 1.0)]
+        x0, y0, x1, y1 = _window(view, np.array(corners))
+        py, px = np.mgrid[y0:y1, x0:x1] + 0.5
+        p, uv = pixel_on_sample(view, pose, px, py)
+        with np.errstate(invalid="ignore"):
+            mask = (np.abs(uv[..., 0]) <= half[0]) & (np.abs(uv[..., 1]) <= half[1])
     with np.errstate(invalid="ignore"):
-        mask = (np.abs(uv[..., 0]) <= half[0]) & (np.abs(uv[..., 1]) <= half[1])
         if light.kind == "spot":
             src = _vec3("light_position_m", pose.light_position_m)
             axis = _unit(centre - src)
@@ -94,14 +138,16 @@ def _roi_mask(
     return mask, x0, y0
 
 
-def default_roi(geometry: RigGeometry, pose: RigPose, light: LightSpec, camera: CameraSpec) -> Box:
+def default_roi(
+    geometry: RigGeometry, pose: RigPose, light: LightSpec, camera: CameraSpec, shape: SampleShape = FLAT
+) -> Box:
     """The largest centred pixel box whose pixel centres all see the sample's central ``roi_fraction``.
 
     The box is grown about the image centre (where the sample centre projects) one pixel a side at a
     time, alternating x and y, while it stays inside the mask; it is at least the central 1-2 pixels
     even when those miss the region (a grazing view at low resolution).
     """
-    mask, ox, oy = _roi_mask(geometry, pose, light, camera)
+    mask, ox, oy = _roi_mask(geometry, pose, light, camera, shape)
     h, w = mask.shape
     area = np.zeros((h + 1, w + 1), dtype=np.int64)
     area[1:, 1:] = np.cumsum(np.cumsum(mask, axis=0), axis=1)
@@ -129,6 +175,8 @@ def default_roi(geometry: RigGeometry, pose: RigPose, light: LightSpec, camera: 
     return x0, y0, x1, y1
 
 
-def roi_box(geometry: RigGeometry, pose: RigPose, light: LightSpec, camera: CameraSpec) -> Box:
-    """The camera's ROI: ``camera.roi`` if given, else ``default_roi`` for this pose."""
-    return camera.roi if camera.roi is not None else default_roi(geometry, pose, light, camera)
+def roi_box(
+    geometry: RigGeometry, pose: RigPose, light: LightSpec, camera: CameraSpec, shape: SampleShape = FLAT
+) -> Box:
+    """The camera's ROI: ``camera.roi`` if given, else ``default_roi`` for this pose and sample shape."""
+    return camera.roi if camera.roi is not None else default_roi(geometry, pose, light, camera, shape)

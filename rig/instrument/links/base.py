@@ -55,3 +55,13 @@ class HomingLink(Protocol):
     def ensure_position_known(self) -> None:
         """Home unless the position is known (or refuse, saying why, where the controller cannot home)."""
         ...
+
+
+@runtime_checkable
+class ScanLink(Protocol):
+    """A link that can run its axes at a chosen constant speed (continuous scans: ``rig.run.measuring.scan``)."""
+
+    def set_speed(self, speeds_deg_s: Mapping[str, float] | None) -> dict[str, float]:
+        """Cap the named axes' speed (deg/s of joint) for the moves that follow (None: back to each axis's top
+        speed); the speeds the device actually runs at, after its own quantisation."""
+        ...

@@ -10,7 +10,7 @@ that shut itself down (overload, overheating) is noticed on the next poll rather
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from rig.instrument.axis import Axis
@@ -186,6 +186,22 @@ class DynamixelLink:
         self.bus.write(sid, table.profile_velocity, 4, table.velocity_units(motor_speed))
         self.bus.write(sid, table.profile_acceleration, 4, table.accel_units(motor_accel))
         self.bus.write(sid, table.torque_enable, 1, 1)
+
+    def set_speed(self, speeds_deg_s: Mapping[str, float] | None) -> dict[str, float]:
+        """Profile Velocity of the named axes (deg/s of joint; None: every axis's top speed); the speeds set.
+
+        The register counts in steps of the table's velocity unit (0.229 rpm, 1.374 deg/s of motor on an XM430), so
+        the speed a servo runs at is the nearest step, never below one: it is returned, in deg/s of joint.
+        """
+        self._require_open()
+        wanted = speeds_deg_s if speeds_deg_s is not None else {n: a.max_speed_deg_s for n, a in self.axes.items()}
+        out = {}
+        for name, speed in wanted.items():
+            axis, table = self.axes[name], self._tables[name]
+            units = table.velocity_units(min(float(speed), axis.max_speed_deg_s) * axis.gear_ratio)
+            self.bus.write(self._id(name), table.profile_velocity, 4, units)
+            out[name] = units * table.velocity_unit_rpm * 6.0 / axis.gear_ratio
+        return out
 
     # -- motion -------------------------------------------------------------------------------------
 

@@ -101,6 +101,7 @@ class GrblLink:
         self._ready_generation = -1
         self._targets: dict[str, float] = {}
         self._closed = False
+        self._speed_caps: dict[str, float] = {}  # set_speed's caps (deg/s of joint); none: the axes' top speeds
         self.session = GrblSession(
             port,
             clock if clock is not None else SystemClock(),
@@ -295,7 +296,8 @@ class GrblLink:
 
     def _move_line(self, coords: Mapping[str, float], planned: Mapping[str, float]) -> str:
         """``G90 G53 G1`` to ``coords`` (motor degrees) at the feed that lets the slowest axis run at its max speed."""
-        speeds = {n: self.axes[n].max_speed_deg_s * self.axes[n].gear_ratio for n in coords}  # motor deg/s
+        speeds = {n: min(self.axes[n].max_speed_deg_s, self._speed_caps.get(n, math.inf)) * self.axes[n].gear_ratio
+                  for n in coords}  # motor deg/s  # fmt: skip
         deltas = {n: coords[n] - planned.get(n, coords[n]) for n in coords}
         duration = max(abs(d) / speeds[n] for n, d in deltas.items())
         length = math.hypot(*deltas.values())
@@ -303,6 +305,11 @@ class GrblLink:
         order = sorted(coords, key=lambda n: AXIS_LETTERS.index(str(self.axes[n].address)))
         words = " ".join(f"{self.axes[n].address}{format_number(coords[n])}" for n in order)
         return f"G90 G53 G1 {words} F{format_number(feed)}"
+
+    def set_speed(self, speeds_deg_s: Mapping[str, float] | None) -> dict[str, float]:
+        """Cap the named axes' speed (deg/s of joint) in the feed of the moves that follow (None: top speeds)."""
+        self._speed_caps = {n: float(v) for n, v in (speeds_deg_s or {}).items()}
+        return {n: min(v, self.axes[n].max_speed_deg_s) for n, v in self._speed_caps.items()}
 
     def ensure_position_known(self) -> None:
         """Home unless GRBL's position is known since the last reset, alarm or reconnect; refuse without homing.

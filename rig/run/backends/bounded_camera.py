@@ -54,6 +54,11 @@ class BoundedCamera:
         self._jobs: queue.SimpleQueue[Callable[[], None] | None] = queue.SimpleQueue()
         self._worker: threading.Thread | None = None
 
+    @property
+    def wrapped(self) -> Camera:
+        """The camera whose calls this one bounds (its own settings, e.g. the simulated camera's full_frame)."""
+        return self._camera
+
     def _submit(self, job: Callable[[], None]) -> None:
         if self._worker is None:
             # The thread holds the queue only, never self, so a dropped camera is collected and its

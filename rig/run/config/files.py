@@ -39,6 +39,7 @@ from rig.instrument.calibration_file import (
 )
 from rig.instrument.geometry import GeometryError, JointLimits, RigGeometry
 from rig.instrument.links.dynamixel_table import X_SERIES
+from rig.instrument.sample_surface import SampleShape
 from rig.run import registry
 from rig.run.config.camera import Camera as CameraTable
 from rig.run.config.camera import camera_keys
@@ -276,6 +277,8 @@ class RigConfig:
     axes: tuple[Axis, ...]
     #: The geometry calibration in force (``[geometry] calibration``), None for the rig as drawn.
     calibration: GeometryCalibration | None = None
+    #: The sample's surface (``[sample]``): flat unless the rig file says otherwise.
+    sample_shape: SampleShape = dataclasses.field(default_factory=SampleShape)
 
     @property
     def alignment(self) -> Alignment:
@@ -453,7 +456,25 @@ def rig_config(
             calibration = read_geometry_calibration(named if named.is_absolute() else p.parent / named)
         except CalibrationFileError as exc:
             raise ConfigError(f"{p}: geometry.calibration = {cfg.geometry.calibration!r}: {exc}") from None
-    return RigConfig(p, cfg, geometry, axes, calibration)
+    return RigConfig(p, cfg, geometry, axes, calibration, _sample_shape(p, cfg, geometry))
+
+
+def _sample_shape(path: Path, cfg: RigFile, geometry: RigGeometry) -> SampleShape:
+    """The ``[sample]`` table's shape in metres, refused where a curved sample would reach the arms."""
+    table = cfg.sample
+    if table.shape == "flat" or table.radius_mm is None:
+        return SampleShape()
+    r = table.radius_mm * 1e-3
+    # The point of the shape farthest from the arms' axis: the sphere's bottom, the cylinder's bottom edge.
+    half = 0.5 * geometry.sample_height_m if table.shape == "cylinder" else 0.0
+    reach = float(np.hypot(2.0 * r, half))
+    arm = min(geometry.light_radius_m, geometry.camera_radius_m)
+    if reach >= arm:
+        largest = 0.5 * np.sqrt(arm * arm - half * half) * 1e3
+        raise ConfigError(f"{path}: sample.radius_mm = {table.radius_mm:g}: a {table.shape} of that radius reaches "
+                          f"{reach:.4g} m from the arms' axis, where the arms are ({arm:g} m); expected less than "
+                          f"{largest:.4g} mm")  # fmt: skip
+    return SampleShape(table.shape, r)
 
 
 def _directions(path: Path, cfg: SweepFile) -> tuple[FloatArray, int]:

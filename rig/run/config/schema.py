@@ -8,7 +8,8 @@ the file, the key, the value and what was expected.
 Rig file tables: ``[geometry]`` (and ``[geometry.limits]``), ``[link]``, ``[axes.<joint>]``, ``[camera]``
 (``[camera.noise]``, ``[camera.options]``; in ``rig.run.config.camera``, which says where the keys each camera
 backend reads are written), ``[reference]``, ``[simulation]`` (``[simulation.material]``,
-``[simulation.sensor]``, ``[simulation.misalignment]``; the simulator reads them through this validation).
+``[simulation.sensor]``, ``[simulation.misalignment]``; the simulator reads them through this validation),
+``[sample]`` (the sample's shape).
 Sweep file tables: ``[sweep]`` and ``[capture]``. Both files may have ``[metadata]`` (``sample``, ``operator``,
 ``notes`` and free keys), which a run carries into its manifest, its tables and the report. See
 examples/*.toml for annotated files.
@@ -23,6 +24,7 @@ from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from rig.run import registry
 from rig.run.config.camera import Camera
+from rig.run.config.sample import Sample
 from rig.run.config.strict import (
     Channels,
     Deg90,
@@ -302,6 +304,7 @@ class RigFile(Strict):
     camera: Camera = Field(default_factory=Camera)
     reference: Reference = Reference()
     simulation: Simulation = Simulation()
+    sample: Sample = Sample()
 
 
 #: The most points a sweep may expand to: far beyond any real sweep (a dense grid of 10^4 points runs for days),
@@ -365,6 +368,36 @@ class Capture(Strict):
     first_exposure_s: Seconds = 0.01
     save_images: bool = False
     include_cosine: bool = False
+    #: "point": each point one reading of the camera's ROI; "image": every tile_px x tile_px tile of the
+    #: sample's whole footprint a sample of its own (rig.run.measuring.image_capture).
+    mode: Literal["point", "image"] = "point"
+    #: Image mode's tile side in pixels (None: rig.run.measuring.tiles.DEFAULT_TILE_PX).
+    tile_px: Annotated[int, Field(ge=1, le=512)] | None = None
+    #: "stop": stop and go, every point measured at rest; "continuous": runs of points that differ in one joint are
+    #: scanned at constant speed while the camera takes one frame per point (rig.run.measuring.scan).
+    motion: Literal["stop", "continuous"] = "stop"
+    #: The scanning joint's constant speed (deg/s of joint) in continuous motion; None: DEFAULT_SCAN_SPEED_DEG_S.
+    #: Bounded well below any axis's top speed: a frame blurs over speed x exposure.
+    scan_speed_deg_s: Annotated[float, Field(gt=0, le=30, allow_inf_nan=False)] | None = None
+
+    @model_validator(mode="after")
+    def _tiles_in_image_mode(self) -> Capture:
+        if self.tile_px is not None and self.mode != "image":
+            raise ValueError(f"tile_px = {self.tile_px} has no meaning in point mode (each point reads the camera's "
+                             'ROI): set mode = "image" to read the sample in tiles, or leave tile_px out')  # fmt: skip
+        if self.scan_speed_deg_s is not None and self.motion != "continuous":
+            raise ValueError(f"scan_speed_deg_s = {self.scan_speed_deg_s:g} has no meaning with motion = "
+                             f'"{self.motion}" (every point is measured at rest): set motion = "continuous" or '
+                             "leave scan_speed_deg_s out")  # fmt: skip
+        if self.motion == "continuous" and self.mode == "image":
+            raise ValueError('motion = "continuous" with mode = "image": continuous scans read the ROI only (point '
+                             'mode) so far; use mode = "point" or motion = "stop"')  # fmt: skip
+        return self
+
+
+#: The scanning joint's speed (deg/s) when a continuous sweep leaves scan_speed_deg_s out: slow enough that a
+#: 10 ms frame blurs by 0.02 deg, far inside a sweep's usual 1-5 deg step.
+DEFAULT_SCAN_SPEED_DEG_S = 2.0
 
 
 class SweepFile(Strict):

@@ -31,6 +31,7 @@ from acquisition.frame import Camera, Frame
 from acquisition.hdr.merge import HdrImage, merge_linear
 from acquisition.noise import SensorNoise
 from acquisition.roi import RoiError, RoiReading
+from rig.run.measuring.tiles import ImageSettings
 
 Box = tuple[int, int, int, int]
 
@@ -49,6 +50,10 @@ class CaptureSettings:
     roi: Box | None = None
     #: Divides every merged image (vignetting and PRNU) where the rig file names one (``[camera] flat_field``).
     flat_field: FlatField | None = None
+    #: Image mode (``[capture] mode = "image"``): every k x k tile on the sample a reading; None: point mode.
+    image: ImageSettings | None = None
+    #: Continuous motion (``[capture] motion = "continuous"``): the scanning joint's speed in deg/s; None: stop and go.
+    scan_speed_deg_s: float | None = None
 
 
 #: A reading whose dimmest channel reaches less than this fraction of the SNR goal is topped up.

@@ -41,7 +41,7 @@ from tqdm import tqdm
 from acquisition.frame import Camera
 from acquisition.roi import channel_list
 from model.errors import EXIT_INTERRUPTED, CameraFault, GonioError, HardwareFault
-from rig.instrument.alignment import Alignment, aligned_forward, light_distance_m
+from rig.instrument.alignment import Alignment, aligned_forward, aligned_pose, light_distance_m
 from rig.instrument.axis import Axis
 from rig.instrument.calibration_file import GeometryCalibration
 from rig.instrument.clock import Clock
@@ -53,9 +53,11 @@ from rig.instrument.links.base import HomingLink, LinkError, MotionLink, MoveTim
 from rig.run.backends.bounded_camera import BoundedCamera
 from rig.run.backends.reference import ReferenceTarget
 from rig.run.measuring.backlash import SIDES, Backlash
+from rig.run.measuring.image_capture import TILE_KEYS, plan_shot, whole_frames
 from rig.run.measuring.measure import CaptureSettings, Level, Reading, take_reading
 from rig.run.measuring.motion_guard import MotionGuard, UnsafeMove
 from rig.run.measuring.progress import Eta, format_eta
+from rig.run.measuring.scan import Scanner
 from rig.run.measuring.warm_up import COMPILING, notify_before_compiling, warm_up
 from rig.run.planning.plan import Plan, PlannedPoint
 from rig.run.storage.journal import check_records
@@ -266,18 +268,26 @@ class Runner:
                 self._return_to_last_pose(records)
             self._continue_time(records)
             self.eta.start(len(self.plan.points) - len(done))
+            speed = self.capture.scan_speed_deg_s
+            scan = Scanner(self, speed) if speed is not None else None
+            swept: set[int] = set()  # indices a scan measured in this call
             for pos, point in enumerate(self.plan.points):
                 if pos in slots and pos not in ref_done and point.index not in done:
                     last_ref = self._reference(pos, last_ref)
-                if point.index in done:
+                if point.index in done or point.index in swept:
                     continue
                 reading = self._point(pos, point, level)
-                level = reading.level
-                self.eta.point_done()
+                level, scanned = reading.level, [pos]
+                if scan is not None:  # continuous motion: the points a scan from here reaches, measured moving
+                    level, more = scan.follow(pos, level, done, slots)
+                    swept.update(self.plan.points[p].index for p in more)
+                    scanned += more
+                for _ in scanned:
+                    self.eta.point_done()
                 if self.options.progress:  # the bar's text, only where there is a bar to show it
                     bar.set_postfix_str(f"{format_eta(self.eta.remaining_s())}, {self._postfix(point, reading)}",
                                         refresh=False)  # fmt: skip
-                bar.update(1)
+                bar.update(len(scanned))
             end = len(self.plan.points)
             if end in slots and end not in ref_done:
                 self._reference(end, last_ref)
@@ -378,10 +388,11 @@ class Runner:
                     raise
         raise AssertionError("unreachable")
 
-    def _read(self, previous: Level | None, capture: CaptureSettings | None = None) -> Reading:
+    def _read(self, previous: Level | None, capture: CaptureSettings | None = None,
+              camera: Camera | None = None) -> Reading:  # fmt: skip
         for attempt in (1, 2):
             try:
-                return take_reading(self.camera, capture or self.capture, previous)
+                return take_reading(camera or self.camera, capture or self.capture, previous)
             except (OSError, RuntimeError, ValueError) as exc:
                 self._event("camera_error", f"{type(exc).__name__}: {exc}", attempt=attempt)
                 if attempt == 2:
@@ -393,7 +404,7 @@ class Runner:
         actual = self._move(point.joints, point.via)
         d = aligned_forward(self.geometry, actual, self.alignment)
         t0 = self.now()
-        reading = self._read(level)
+        reading, tiles = self._read_image(actual, level) if self.capture.image else (self._read(level), {})
         t1 = self.now()
         fault: LinkError | None = None
         try:  # where the axes stood at the end: how far they moved during the frames
@@ -411,12 +422,24 @@ class Runner:
             "theta_o_deg": _f(float(d.theta_o)), "phi_o_deg": _f(float(d.phi_o)),
             "joints_deg": {k: _f(float(v)) for k, v in actual.as_dict().items()},
             **self._reading_fields(reading), "image": image, **self._times(t0, t1),
-            **self._uncertainty(actual, after, d), **self._distance(actual),
+            **self._uncertainty(actual, after, d), **self._distance(actual), **tiles,
         })  # fmt: skip
         self._measured += 1
         if fault is not None:
             raise fault
         return reading
+
+    def _read_image(self, actual: Joints, level: Level | None) -> tuple[Reading, dict[str, Any]]:
+        """Image mode's reading of the whole footprint and its tiles' journal table (``image_capture``)."""
+        image = self.capture.image
+        assert image is not None
+        shot = plan_shot(self.camera, self.capture, self.geometry, aligned_pose(self.geometry, actual, self.alignment))
+        if shot is None:  # no whole tile on the sample (a grazing view): the point's ROI, and no samples
+            reading = self._read(level, dataclasses.replace(self.capture, image=None))
+            return reading, {"tiles": {k: [] for k in TILE_KEYS}, "tile_px": image.tile_px, "tiles_grazing": 0}
+        with whole_frames(self.camera):
+            reading = self._read(level, shot.capture, shot.camera)
+        return reading, shot.record(reading)
 
     def _uncertainty(self, before: Joints, after: Mapping[str, float], measured: Directions) -> dict[str, Any]:
         """The directions' covariances (rig.instrument.direction_uncertainty) for the journal."""
@@ -444,7 +467,7 @@ class Runner:
         Irradiance falls as its inverse square, so the table scales each reading by (d / d_ref)^2; a rig
         without a calibration journals none, and its table stays as it was.
         """
-        if self.alignment.is_zero:
+        if self.alignment.is_zero and self.capture.image is None:  # image mode: every tile has its own distance
             return {}
         return {"light_distance_m": _f(light_distance_m(self.geometry, joints, self.alignment))}
 

@@ -58,6 +58,8 @@ _FIXED = {
     "exposures_s": ("list", "s", "exposure time of each frame of the bracket, in capture order (CSV: a JSON array)"),
     "utc": ("str", "", "UTC time (ISO 8601) the point's journal record was made, right after its reading; "
             "empty in older journals"),
+    "tile": ("int", "", "image mode only: the k x k pixel tile of the sensor the sample is (row * columns + "
+             "column of the sensor's tile grid); several rows share a point's index, one per tile on the sample"),
     "round": ("int", "", "round of the adaptive sweep that measured the point (0 is the space-filling start)"),
     "direction_cov": ("str", "", "JSON: the 4 x 4 covariance of the local unit directions' tangent components wi_x, "
                       "wi_y, wo_x, wo_y (dimensionless, rad^2 for small errors); empty in older journals"),

@@ -90,7 +90,10 @@ def build_rows(
     albedo_std_error: float = 0.0,
     include_cosine: bool = False,
 ) -> list[dict[str, Any]]:
-    """Table rows (one per measured point, in sweep-index order) from journal records; see the module docstring."""
+    """Table rows (one per measured point, in sweep-index order) from journal records; see the module docstring.
+
+    An image-mode point (a record with ``tiles``) gives one row per tile, in tile order, with a ``tile`` column.
+    """
     refs = sorted((r for r in records if r.get("kind") == "reference"), key=lambda r: r["slot"])
     points = sorted((r for r in records if r.get("kind") == "point"), key=lambda r: r["index"])
     rows = []
@@ -98,38 +101,72 @@ def build_rows(
         pos = p["position"]
         before = [r for r in refs if r["slot"] <= pos]
         after = [r for r in refs if r["slot"] > pos]
-        brdf = se = se_read = None
-        lower = bool(p["lower_bound"])
+        cal: ReferenceCalibration | None = None
+        t = None
         if before and albedo is not None:
             nxt = after[0] if after else None
             times = _times(p, before[-1], nxt)
             cal = _calibration(before[-1], nxt, albedo, albedo_std_error, times)
             # Readings in the middle of the references' own exposures are clipped into their span.
             t = min(max(times[2], times[0]), times[1]) if nxt is not None else None
-            sample = cal.to_brdf(
-                np.asarray(p["reading"], dtype=float), p["theta_i_deg"], p["theta_o_deg"],
-                std_error=np.asarray(p["reading_std_error"], dtype=float),
-                time_s=t, include_cosine=include_cosine,
-                light_distance_m=p.get("light_distance_m") if cal.light_distance_m is not None else None,
-            )  # fmt: skip
-            brdf, se, se_read = sample.value.tolist(), sample.std_error.tolist(), sample.std_error_readings.tolist()
-        row: dict[str, Any] = {"index": p["index"]}
-        for key in ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg"):
-            row[key] = p[key]
-        for key, value in zip(("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg"), p["target_deg"], strict=True):
-            row[f"target_{key}"] = value
-        for name in joint_names:
-            row[f"{name}_deg"] = p["joints_deg"][name]
-        row |= _channels("brdf", brdf) | _channels("brdf_se", se) | _channels("brdf_se_readings", se_read)
-        row |= _channels("reading", p["reading"]) | _channels("reading_se", p["reading_std_error"])
-        row["includes_cosine"] = include_cosine
-        row["lower_bound"] = lower
-        row["dark"] = bool(p.get("dark", False))  # journals before the flag existed: not known to be dark
-        row["n_frames"] = len(p["exposures_s"])
-        row["total_exposure_s"] = float(sum(p["exposures_s"]))
-        # A JSON array: one cell that any CSV reader keeps whole and json.loads turns into a list.
-        row["exposures_s"] = json.dumps([float(t) for t in p["exposures_s"]])
-        row |= _direction_columns(p)
-        row["utc"] = p.get("utc")
-        rows.append(row)
+        for sample in _samples(p):
+            rows.append(_row(p, sample, joint_names, cal, t, include_cosine))
     return rows
+
+
+def _samples(p: Mapping[str, Any]) -> list[Mapping[str, Any]]:
+    """The samples of a point record: itself, or (image mode) each of its tiles with the point's pose errors added."""
+    tiles = p.get("tiles")
+    if tiles is None:
+        return [p]
+    out: list[Mapping[str, Any]] = []
+    pose_a = np.asarray(p.get("angle_cov_deg2", np.zeros((4, 4))), dtype=float).reshape(16)
+    pose_t = np.asarray(p.get("direction_cov", np.zeros((4, 4))), dtype=float).reshape(16)
+    for k in range(len(tiles["tile"])):
+        tile = {key: tiles[key][k] for key in tiles}
+        # A tile's directions carry its footprint's spread and the pose's own error (common to every tile).
+        tile["angle_cov_deg2"] = (np.asarray(tile["angle_cov_deg2"]) + pose_a).reshape(4, 4).tolist()
+        tile["direction_cov"] = np.round((np.asarray(tile["direction_cov"]) + pose_t), 18).reshape(4, 4).tolist()
+        out.append(tile)
+    return out
+
+
+def _row(
+    p: Mapping[str, Any],
+    s: Mapping[str, Any],
+    joint_names: Sequence[str],
+    cal: ReferenceCalibration | None,
+    t: float | None,
+    include_cosine: bool,
+) -> dict[str, Any]:
+    """One row: the point ``p``'s sample ``s`` (``p`` itself, or one of its tiles)."""
+    brdf = se = se_read = None
+    if cal is not None:
+        sample = cal.to_brdf(
+            np.asarray(s["reading"], dtype=float), s["theta_i_deg"], s["theta_o_deg"],
+            std_error=np.asarray(s["reading_std_error"], dtype=float),
+            time_s=t, include_cosine=include_cosine,
+            light_distance_m=s.get("light_distance_m") if cal.light_distance_m is not None else None,
+        )  # fmt: skip
+        brdf, se, se_read = sample.value.tolist(), sample.std_error.tolist(), sample.std_error_readings.tolist()
+    row: dict[str, Any] = {"index": p["index"]}
+    if s is not p:
+        row["tile"] = s["tile"]
+    for key in ("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg"):
+        row[key] = s[key]
+    for key, value in zip(("theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg"), p["target_deg"], strict=True):
+        row[f"target_{key}"] = value
+    for name in joint_names:
+        row[f"{name}_deg"] = p["joints_deg"][name]
+    row |= _channels("brdf", brdf) | _channels("brdf_se", se) | _channels("brdf_se_readings", se_read)
+    row |= _channels("reading", s["reading"]) | _channels("reading_se", s["reading_std_error"])
+    row["includes_cosine"] = include_cosine
+    row["lower_bound"] = bool(s["lower_bound"])
+    row["dark"] = bool(s.get("dark", False))  # journals before the flag existed: not known to be dark
+    row["n_frames"] = len(p["exposures_s"])
+    row["total_exposure_s"] = float(sum(p["exposures_s"]))
+    # A JSON array: one cell that any CSV reader keeps whole and json.loads turns into a list.
+    row["exposures_s"] = json.dumps([float(t) for t in p["exposures_s"]])
+    row |= _direction_columns(s)
+    row["utc"] = p.get("utc")
+    return row

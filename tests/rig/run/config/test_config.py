@@ -10,6 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from rig.instrument.sample_surface import SampleShape
 from rig.run.config.files import ConfigError, load_rig, load_sweep, material_from, parse, rig_config, sweep_config
 from rig.run.config.schema import RigFile, SweepFile, run_metadata
 from rig.run.session import make_plan
@@ -51,6 +52,14 @@ def test_a_rig_rebuilt_from_its_manifest_has_the_same_axes(name: str) -> None:
     dumped = rig.file.model_dump(mode="json", exclude_none=True)  # what rig.run.session.manifest stores
     again = rig_config(parse(dumped, RigFile, "manifest.json rig"), "manifest.json")
     assert again.axes == rig.axes
+
+
+def test_the_sample_table_gives_the_rig_its_shape_in_metres(tmp_path: Path) -> None:
+    assert load_rig(EXAMPLES / "rig_simulated.toml").sample_shape == SampleShape()
+    rig = load_rig(EXAMPLES / "rig_simulated_sphere.toml")
+    assert rig.sample_shape.kind == "sphere" and rig.sample_shape.radius_m == pytest.approx(0.02)
+    cylinder = load_rig(_write(tmp_path, "[sample]\nshape = 'cylinder'\nradius_mm = 7\n"))
+    assert cylinder.sample_shape == SampleShape("cylinder", 0.007)
 
 
 def test_rig_file_values_reach_the_objects() -> None:
@@ -101,6 +110,14 @@ RIG_MISTAKES = [
     ("[simulation.material]\nmodel = 'Glass'\n", r"simulation\.material\.model = 'Glass': expected one of .*Lambert"),
     ("[simulation.material]\nmodel = 'Lambert'\nrho_d = 3.0\n", r"simulation\.material: "),
     ("name = 5\n", r"name = 5: expected a valid string"),
+    ("[sample]\nradius_mm = 20.0\n", r"\[sample\] radius_mm = 20: a flat sample has no radius; expected no radius_mm"),
+    ("[sample]\nshape = 'sphere'\n", r"\[sample\] shape = 'sphere': a sphere needs radius_mm"),
+    ("[sample]\nshape = 'cone'\nradius_mm = 5.0\n", r"sample\.shape = 'cone': expected a value 'flat', 'sphere'"),
+    ("[sample]\nshape = 'cylinder'\nradius_mm = 0.0\n", r"sample\.radius_mm = 0\.0: expected a value greater than 0"),
+    ("[sample]\nshape = 'sphere'\nradius_mm = 300.0\n", r"sample\.radius_mm = 300\.0: expected a value less than"),
+    ("[sample]\nshape = 'sphere'\nradius_mm = '5'\n", r"sample\.radius_mm = '5': expected a valid number \(> 0"),
+    ("[geometry]\nlight_radius_m = 0.2\n[sample]\nshape = 'sphere'\nradius_mm = 120.0\n",
+     r"sample\.radius_mm = 120: a sphere of that radius reaches 0\.24 m from the arms' axis.*less than 100 mm"),
     ("[geometry\n", r"not valid TOML"),
 ]
 
@@ -171,6 +188,7 @@ rig_keys = st.sampled_from([
     ["link", "move_timeout_s"], ["camera", "resolution"], ["camera", "spp"], ["camera", "noise", "e_per_dn"],
     ["reference", "albedo"], ["reference", "every"], ["simulation", "seed"], ["simulation", "material", "alpha"],
     ["axes", "light", "id"], ["axes", "tilt", "gear_ratio"], ["bogus"], ["geometry", "limits", "tilt"],
+    ["sample", "shape"], ["sample", "radius_mm"],
 ])  # fmt: skip
 sweep_keys = st.sampled_from([
     ["sweep", "kind"], ["sweep", "theta_i_deg"], ["sweep", "theta_o_deg"], ["sweep", "points"],

@@ -108,3 +108,14 @@ def test_a_run_written_with_every_default_still_reads(tmp_path: Path) -> None:
     path.write_text(json.dumps(doc))
     back, _ = configs_of(RunStore.read(tmp_path / "run"))
     assert back.file == rig.file and back.axes == rig.axes
+
+
+def test_a_curved_sample_reads_back_and_a_rig_without_one_writes_no_sample_key(tmp_path: Path) -> None:
+    for name in ("sphere", "flat"):
+        (tmp_path / name).mkdir()
+    rig, back, table = _round_trip(tmp_path / "sphere", '[sample]\nshape = "sphere"\nradius_mm = 12.5\n')
+    assert table["sample"] == {"shape": "sphere", "radius_mm": 12.5}
+    assert back.sample_shape == rig.sample_shape and rig.sample_shape.radius_m == 0.0125
+    # A rig file without [sample] writes the manifest it always wrote: no key for the default flat sample.
+    _, flat, table = _round_trip(tmp_path / "flat", _rig_text("simulated"))
+    assert "sample" not in table and flat.sample_shape.kind == "flat"

@@ -1,0 +1,264 @@
+"""Continuous scans (``[capture] motion = "continuous"``): the arm sweeps at constant speed while the camera shoots.
+
+A *scan run* is a stretch of consecutive planned points that differ in one joint only, monotonic in it, with no
+reference reading or via pose between them (``scan_run``). The runner measures its first point stop-and-go, as
+always; that reading's level plans the scan's exposure. ``Scanner.follow`` then slows the scanning joint to the
+scan speed (``ScanLink.set_speed``: a Dynamixel's Profile Velocity, a GRBL's feed), commands the run's last pose
+once, and, while the arm moves, takes one frame per remaining point: it waits until the read-back says the
+joint is half an exposure's travel short of the point, then shoots one exposure (and its darks) planned from the
+previous frame's level, never above ``SCAN_SAFETY`` of saturation (a frame that clips anyway is dropped, and
+the runner measures that point at rest).
+
+Each frame's directions come from the joints interpolated to the exposure's middle, linearly between the
+time-stamped read-backs just before and just after the frame (``interpolate``); the exposure is taken to end
+when the camera's call returns. Motion blur is uniform motion over the exposure: the moving joint's variance
+gains (speed x exposure)^2 / 12, through the runner's ``_uncertainty`` (which adds a joint's travel squared over
+twelve). Blur beyond ``BLUR_FRACTION`` of the smallest step of the run warns (``ScanTooFast``), naming the blur
+and the speed that would keep it within bounds. Gear play is not taken out during a scan (the load's flank is
+not pinned by a one-sided approach): it stays in the uncertainty.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol, cast
+
+import numpy as np
+
+from acquisition.exposure.plan import plan_exposure
+from acquisition.exposure.spec import ExposureError
+from acquisition.frame import Camera, Frame
+from acquisition.hdr.merge import HdrFlag
+from rig.instrument.alignment import aligned_forward
+from rig.instrument.kinematics import Joints
+from rig.instrument.links.base import ScanLink
+from rig.run.measuring.measure import Level, Reading
+from rig.run.planning.plan import PlannedPoint
+
+#: Motion blur (deg) a frame may have, as a fraction of the smallest step of its scan run, before ScanTooFast.
+BLUR_FRACTION = 0.5
+#: Fraction of saturation a frame's ROI peak is planned at: the next point may be this much brighter (x4).
+SCAN_SAFETY = 0.25
+#: Longest clock step (s) between read-backs while waiting for the arm to reach a frame's start.
+POLL_S = 0.05
+
+
+class ScanTooFast(UserWarning):
+    """A continuous scan's frames blur over more than BLUR_FRACTION of the sweep's step."""
+
+
+@dataclass(frozen=True)
+class Stamp:
+    """The joints read back (deg) and the clock time (s) of the read-back's middle."""
+
+    t_s: float
+    joints: dict[str, float]
+
+
+def interpolate(a: Stamp, b: Stamp, t_s: float) -> dict[str, float]:
+    """The joint angles (deg) at clock time ``t_s`` (s), linear between two time-stamped read-backs."""
+    if b.t_s <= a.t_s:
+        return dict(b.joints)
+    w = (t_s - a.t_s) / (b.t_s - a.t_s)
+    return {k: v + w * (b.joints[k] - v) for k, v in a.joints.items()}
+
+
+def scan_run(points: Sequence[PlannedPoint], start: int, done: set[int], slots: set[int],
+             driven: frozenset[str]) -> tuple[str, list[int]] | None:  # fmt: skip
+    """The joint a scan from plan position ``start`` moves and the positions it reaches (None: no scan)."""
+    prev = points[start].joints.as_dict()
+    joint, direction, out = "", 0, []
+    for pos in range(start + 1, len(points)):
+        p = points[pos]
+        if p.index in done or pos in slots or p.via:
+            break
+        cur = p.joints.as_dict()
+        changed = [k for k in cur if abs(float(cur[k]) - float(prev[k])) > 1e-9]
+        if len(changed) != 1 or changed[0] not in driven or (joint and changed[0] != joint):
+            break
+        step = 1 if float(cur[changed[0]]) > float(prev[changed[0]]) else -1
+        if direction and step != direction:
+            break
+        joint, direction = changed[0], step
+        out.append(pos)
+        prev = cur
+    return (joint, out) if out else None
+
+
+class ScanHost(Protocol):
+    """What a scan needs of the runner (``rig.run.measuring.runner.Runner``)."""
+
+    link: Any
+    camera: Any
+    clock: Any
+    geometry: Any
+    alignment: Any
+    capture: Any
+    plan: Any
+    options: Any
+    guard: Any
+    store: Any
+    _sides: dict[str, int]
+
+    @property
+    def guard_names(self) -> frozenset[str]: ...  # noqa: D102
+
+    def now(self) -> float: ...  # noqa: D102
+
+    def _read(self, previous: Level | None, capture: Any = None, camera: Camera | None = None) -> Reading: ...
+
+    def _event(self, what: str, message: str, **extra: Any) -> None: ...
+
+    def _reading_fields(self, reading: Reading) -> dict[str, Any]: ...
+
+    def _times(self, start: float, end: float) -> dict[str, Any]: ...
+
+    def _uncertainty(self, before: Joints, after: Mapping[str, float], measured: Any) -> dict[str, Any]: ...
+
+    def _distance(self, joints: Joints) -> dict[str, Any]: ...
+
+
+class _Stamped:
+    """The camera with every light frame bracketed by time-stamped read-backs of the joints."""
+
+    exposed_frames = None  # measure._shoot then calls set_exposure and capture, which pass through here
+
+    def __init__(self, camera: Camera, read: Callable[[], Stamp], clock: Any) -> None:
+        self._camera, self._read, self._clock = camera, read, clock
+        self.light: list[tuple[Stamp, float, Frame, Stamp]] = []  # before, clock at return, frame, after
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._camera, name)
+
+    def capture(self) -> Frame:
+        before = self._read()
+        frame = self._camera.capture()
+        end = self._clock.now()
+        self.light.append((before, end, frame, self._read()))
+        return frame
+
+
+def scan_exposure(level: Level, capture: Any) -> float:
+    """One frame's exposure (s): the planner's single frame for the SNR goal, its peak at SCAN_SAFETY of full."""
+    try:
+        plan = plan_exposure(level.roi_level(), capture.noise, capture.target_snr, capture.timing, safety=SCAN_SAFETY,
+                             dark_frames=capture.dark_frames, max_frames=1)  # fmt: skip
+    except ExposureError:  # too bright even at the shortest exposure: that frame clips and is measured at rest
+        return float(capture.timing.min_exposure_s)
+    return float(max(plan.exposures_s))
+
+
+class Scanner:
+    """Scans the runs of a plan for one runner; see the module docstring."""
+
+    def __init__(self, host: ScanHost, speed_deg_s: float) -> None:
+        self.host, self.speed = host, float(speed_deg_s)
+
+    def _stamp(self) -> Stamp:
+        t0 = self.host.clock.now()
+        joints = self.host.link.read_positions()
+        return Stamp(0.5 * (t0 + self.host.clock.now()), {k: float(v) for k, v in joints.items()})
+
+    def follow(self, start: int, level: Level, done: set[int], slots: set[int]) -> tuple[Level, list[int]]:
+        """Scan on from plan position ``start`` (just measured at rest); the level and the positions measured."""
+        h = self.host
+        run = scan_run(h.plan.points, start, done, slots, h.guard_names)
+        link = h.link
+        if run is None or not isinstance(link, ScanLink):
+            return level, []
+        joint, rest = run
+        points = h.plan.points
+        angles = [float(points[p].joints.as_dict()[joint]) for p in (start, *rest)]
+        step = min(abs(b - a) for a, b in itertools.pairwise(angles))
+        direction = 1.0 if angles[-1] > angles[0] else -1.0
+        target = {k: float(v) for k, v in points[rest[-1]].joints.as_dict().items() if k in h.guard_names}
+        legs = h.guard.legs(h.link, target)
+        if len(legs) != 1:  # the straight sweep is not safe: stop and go instead
+            return level, []
+        speed = link.set_speed({joint: self.speed})[joint]
+        measured: list[int] = []
+        warned = False
+        try:
+            h.link.move_to(legs[0])
+            h._sides = {}  # no one-sided approach during a scan: its play stays in the uncertainty
+            for pos in rest:
+                exposure = scan_exposure(level, h.capture)
+                blur = speed * exposure
+                if blur > BLUR_FRACTION * step and not warned:
+                    warned = True
+                    self._too_fast(blur, step, exposure, speed)
+                self._reach(joint, float(points[pos].joints.as_dict()[joint]) - direction * blur / 2, direction, speed)
+                got = self._frame(pos, points[pos], level, exposure, (joint, direction * speed))
+                if got is None:  # clipped: this point and the rest are measured at rest
+                    break
+                level = got.level
+                measured.append(pos)
+        finally:
+            h.link.wait_in_position(timeout_s=h.options.move_timeout_s)
+            link.set_speed(None)
+        return level, measured
+
+    def _too_fast(self, blur: float, step: float, exposure: float, speed: float) -> None:
+        ok = BLUR_FRACTION * step / exposure
+        message = (f"continuous scan too fast for its exposure: {exposure:.3g} s at {speed:.3g} deg/s blurs each "
+                   f"frame over {blur:.3g} deg, more than {BLUR_FRACTION:g} of the {step:.3g} deg step; "
+                   f"scan_speed_deg_s <= {ok:.3g} keeps it within bounds (the blur is in the directions' "
+                   "uncertainty)")  # fmt: skip
+        warnings.warn(message, ScanTooFast, stacklevel=3)
+        self.host._event("scan_too_fast", message, blur_deg=blur, speed_within_deg_s=ok)
+
+    def _reach(self, joint: str, angle: float, direction: float, speed: float) -> None:
+        """Wait (clock time) until the read-back of ``joint`` passes ``angle`` (deg), or the arm stops short."""
+        clock = self.host.clock
+        deadline = clock.now() + self.host.options.move_timeout_s
+        while clock.now() < deadline:
+            remaining = direction * (angle - float(self.host.link.read_positions()[joint]))
+            if remaining <= 0:
+                return
+            clock.sleep(min(max(remaining / speed, 1e-4), POLL_S))
+
+    def _frame(self, pos: int, point: PlannedPoint, level: Level, exposure: float,
+               velocity: tuple[str, float]) -> Reading | None:  # fmt: skip
+        """One frame at ``exposure`` (s) while ``velocity`` (joint, deg/s) moves the arm, journaled as ``point``;
+        None if it clipped."""
+        h = self.host
+        camera = _Stamped(h.camera, self._stamp, h.clock)
+        reading = h._read(level, dataclasses.replace(h.capture, exposures_s=(exposure,)), cast(Camera, camera))
+        before, end, frame, after = camera.light[-1]
+        flags = reading.hdr.flags
+        if h.capture.roi is not None:
+            x0, y0, x1, y1 = h.capture.roi
+            flags = flags[y0:y1, x0:x1]
+        if np.any(flags & HdrFlag.SATURATED):
+            h._event("scan_clipped", f"point {point.index}: a scan frame clipped; measured at rest instead")
+            return None
+        t0 = end - frame.exposure_s
+        mid = interpolate(before, after, 0.5 * (t0 + end))
+        joints = Joints.from_dict({**{k: float(v) for k, v in point.joints.as_dict().items()}, **mid})
+        # The travel during the exposure, as _uncertainty reads it: variance (speed x exposure)^2 / 12. From the
+        # device's speed: two read-backs a short frame apart often read the same encoder count.
+        travel = {**mid, velocity[0]: mid[velocity[0]] + velocity[1] * frame.exposure_s}
+        d = aligned_forward(h.geometry, joints, h.alignment)
+        offset = h.now() - h.clock.now()
+        h.store.append({
+            "kind": "point", "index": point.index, "position": pos,
+            "target_deg": [_f(v) for v in point.directions_deg],
+            "theta_i_deg": _f(float(d.theta_i)), "phi_i_deg": _f(float(d.phi_i)),
+            "theta_o_deg": _f(float(d.theta_o)), "phi_o_deg": _f(float(d.phi_o)),
+            "joints_deg": {k: _f(float(v)) for k, v in joints.as_dict().items()},
+            **h._reading_fields(reading), "image": None, **h._times(t0 + offset, end + offset),
+            **h._uncertainty(joints, travel, d), **h._distance(joints),
+            "scan": {"before": [before.t_s, before.joints], "after": [after.t_s, after.joints],
+                     "exposure_start_s": t0, "exposure_end_s": end},
+        })  # fmt: skip
+        return reading
+
+
+def _f(x: float) -> float:
+    """``x`` rounded to 9 decimals for the journal (-0.0 as 0.0)."""
+    return float(np.round(float(x), 9)) + 0.0 if math.isfinite(float(x)) else float(x)

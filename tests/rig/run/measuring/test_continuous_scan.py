@@ -1,0 +1,130 @@
+"""Continuous scans ([capture] motion = "continuous"): frames while the arm moves, directions at mid-exposure."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from model.fit.angular import angular_variance
+from model.fit.samples import Samples
+from rig.run.config.files import ConfigError, material_from, parse
+from rig.run.config.schema import DEFAULT_SCAN_SPEED_DEG_S, SweepFile
+from rig.run.measuring.scan import ScanTooFast, Stamp, interpolate
+from rig.run.session import capture_settings, make_plan, manifest, options_for
+from rig.run.storage.store import RunStore
+from simulator.from_config import rig_from, spec_from
+from tests.run_helpers import LAMBERT, in_plane_sweep, read_rows, run_outcome, sim_rig, truth_and_measured
+
+GLOSSY = {"model": "CookTorrance", "alpha": 0.15, "eta": [0.18, 0.42, 1.37], "k": [3.42, 2.35, 1.77]}
+#: Two scan runs: 10 -> 0 -> -10 and -50 -> -40 -> -30 (-20 is the light's own direction, unreachable).
+THETA_O = [-50.0, -40.0, -30.0, -20.0, -10.0, 0.0, 10.0]
+MEASURED, SCANNED = 6, 4
+#: One encoder count of an XM430 (deg): the read-backs' quantum, and so the interpolation's.
+COUNT_DEG = 360.0 / 4096
+
+
+def _sweep(**capture: Any) -> SweepFile:
+    return parse({"sweep": {"kind": "in_plane", "theta_i_deg": [20.0], "theta_o_deg": [30.0]}, "capture": capture},
+                 SweepFile, "s.toml")  # fmt: skip
+
+
+def test_motion_defaults_to_stop_and_its_keys_are_checked() -> None:
+    assert _sweep().capture.motion == "stop" and _sweep().capture.scan_speed_deg_s is None
+    rig = sim_rig(LAMBERT)
+    assert capture_settings(rig, in_plane_sweep([20.0], [30.0])).scan_speed_deg_s is None
+    on = capture_settings(rig, in_plane_sweep([20.0], [30.0], motion="continuous"))
+    assert on.scan_speed_deg_s == DEFAULT_SCAN_SPEED_DEG_S
+    with pytest.raises(ConfigError, match=r'scan_speed_deg_s = 3 has no meaning with motion = "stop"'):
+        _sweep(scan_speed_deg_s=3.0)
+    with pytest.raises(ConfigError, match=r"s\.toml.*scan_speed_deg_s"):
+        _sweep(motion="continuous", scan_speed_deg_s=0.0)
+    with pytest.raises(ConfigError, match="motion"):
+        _sweep(motion="sweeping")
+    with pytest.raises(ConfigError, match='continuous scans read the ROI only'):
+        _sweep(motion="continuous", mode="image")
+
+
+def test_interpolation_is_linear_between_time_stamped_read_backs() -> None:
+    a, b = Stamp(1.0, {"camera": 10.0}), Stamp(3.0, {"camera": 14.0})
+    assert interpolate(a, b, 2.5) == {"camera": 13.0}
+    assert interpolate(b, b, 9.0) == {"camera": 14.0}
+
+
+def _run(tmp_path: Path, material: dict[str, Any], light_w_sr: float = 1.0, on: str = "dynamixel",
+         **capture: Any) -> tuple[list[dict[str, Any]], Any, list[Any]]:  # fmt: skip
+    """A continuous in-plane scan: its journal's points, the rig config, and (clock, camera joint) of every render."""
+    rig = sim_rig(material, on=on, reference={"every": 0}, simulation={"light_intensity_w_sr": light_w_sr})
+    sweep = in_plane_sweep([20.0], THETA_O, **capture)
+    plan = make_plan(rig, sweep)
+    store = RunStore.create(tmp_path / "run", manifest(rig, sweep, plan, options_for(rig, sweep, False)))
+    renders: list[tuple[float, float]] = []
+    with rig_from(rig, spec=spec_from(rig)) as sim:
+        assert sim.camera is not None
+        inner = sim._radiance
+
+        def recorded(*args: Any, **kwargs: Any) -> Any:
+            renders.append((sim.clock.now(), float(sim.joints_now().as_dict()["camera"])))
+            return inner(*args, **kwargs)
+
+        sim._radiance = recorded  # type: ignore[method-assign]
+        outcome = run_outcome(sim, rig, sweep, plan, store, sim.camera)
+    assert not isinstance(outcome, Exception), outcome
+    points = [r for r in RunStore.read(tmp_path / "run").records() if r["kind"] == "point"]
+    return points, (rig, outcome), renders
+
+
+def _check_mid_exposure(points: list[dict[str, Any]], renders: list[tuple[float, float]]) -> int:
+    """Every scanned point's camera joint is the servos' true angle at its exposure's middle; how many were scanned."""
+    scanned = [p for p in points if "scan" in p]
+    for p in scanned:
+        t0, t1 = p["scan"]["exposure_start_s"], p["scan"]["exposure_end_s"]
+        inside = [j for t, j in renders if t0 - 1e-9 <= t <= t1 + 1e-9]
+        assert len(inside) >= 4  # the frame's sub-exposures, rendered where the servos stood then
+        # Sub-exposures sit symmetrically about the middle: their mean is the true angle at mid-exposure.
+        assert p["joints_deg"]["camera"] == pytest.approx(np.mean(inside), abs=COUNT_DEG)
+        assert abs(inside[-1] - inside[0]) > 0  # the arm moved during the frame
+    return len(scanned)
+
+
+def _z(rows: list[dict[str, str]], rig: Any) -> np.ndarray:
+    truth, got, se = truth_and_measured(rows, rig)
+    return np.asarray((got - truth) / se)
+
+
+@pytest.mark.parametrize("link", ["dynamixel", pytest.param("grbl", marks=pytest.mark.xfail(
+    reason="GRBL scans: the feed is capped, but the simulated steppers are not seen moving during the frames yet",
+    strict=True))])
+def test_a_lambertian_scan_records_mid_exposure_directions_and_honest_readings(tmp_path: Path, link: str) -> None:
+    points, (rig, outcome), renders = _run(tmp_path, LAMBERT, on=link, motion="continuous", scan_speed_deg_s=5.0)
+    assert len(points) == MEASURED and _check_mid_exposure(points, renders) == SCANNED
+    blur_var = [p["angle_cov_deg2"] for p in points if "scan" in p]
+    assert all(np.all(np.isfinite(v)) for v in blur_var)
+    z = _z(read_rows(outcome.table), rig)
+    assert np.mean(np.abs(z) < 2) >= 0.6 and np.max(np.abs(z)) < 5
+
+
+def test_a_too_fast_scan_warns_with_its_blur_and_a_speed_that_keeps_it_in_bounds(tmp_path: Path) -> None:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        # A dim lamp: frames of ~1 s, which at 30 deg/s blur over far more than half the 10 deg step.
+        _run(tmp_path, LAMBERT, 1e-4, motion="continuous", scan_speed_deg_s=30.0, target_snr=50.0)
+    too_fast = [w for w in caught if issubclass(w.category, ScanTooFast)]
+    assert too_fast, [str(w.message) for w in caught]
+    assert "blurs each frame over" in str(too_fast[0].message) and "scan_speed_deg_s <=" in str(too_fast[0].message)
+
+
+def test_a_glossy_scan_agrees_with_its_truth_within_errors_that_hold_the_blur(tmp_path: Path) -> None:
+    points, (rig, outcome), renders = _run(tmp_path, GLOSSY, motion="continuous", scan_speed_deg_s=20.0)
+    assert _check_mid_exposure(points, renders) == SCANNED
+    rows = read_rows(outcome.table)
+    truth, got, se = truth_and_measured(rows, rig)
+    var = angular_variance(material_from(rig), Samples.from_table_rows(rows, errors="readings"))
+    z = np.asarray((got - truth) / np.sqrt(se**2 + var))
+    assert np.mean(np.abs(z) < 2) >= 0.6 and np.max(np.abs(z)) < 5, z
+    # The moving joint's blur, (speed x exposure)^2 / 12, is in every scanned point's covariance.
+    for p in (p for p in points if "scan" in p):
+        assert np.trace(np.asarray(p["angle_cov_deg2"])) >= (20.0 * p["exposures_s"][0]) ** 2 / 12 * 0.5
