@@ -284,7 +284,11 @@ def main(argv: list[str] | None = None) -> int:
         + "\n".join(f"- {line}" for line in lines)
         + "\n\nSamples per capture are the footprint's pixels over tile_px^2, so the throughput a tile size reaches "
         "depends on the camera: a dial that misses 100x here reaches it on a camera with more pixels on the "
-        "sample, and the error it reaches at equal rig time moves with it.",
+        "sample, and the error it reaches at equal rig time moves with it. Where the shape error is far below "
+        "the error (the Lambertian sample, whose shape any fit gets), the error is the reference calibration's "
+        "scale, one draw of the references per run: the ratio there compares two calibrations' noise rather than "
+        "the two sweeps. Every figure is one noise realisation (one seed): a ratio near its goal may fall on the "
+        "other side with another seed (`--seed`); sweep_tradeoff averages seeds for that reason.",
     )  # fmt: skip
     return 0
 
