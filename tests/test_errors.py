@@ -42,6 +42,7 @@ GIVEN_A_KIND = {
     "simulator.rehearsal.RehearsalError": "a rig file gonio sim rig cannot rehearse is bad input: now exit 2, was 70",
     "rig.instrument.calibration_file.CalibrationFileError": "a bad calibration file is bad input: now exit 2, was 70",
     "rig.instrument.links.dynamixel_table.UnknownModelError": "a servo of unknown model is hardware: now 3, was 70",
+    "rig.run.measuring.image_capture.ImageModeError": "new: a rig file's sensor size or a sweep's tile_px: exit 2",
 }
 
 

@@ -31,6 +31,7 @@ from acquisition.cfa import reduce_mosaic_roi
 from acquisition.frame import Camera, ExposureSettings, Frame
 from acquisition.hdr.merge import HdrFlag, HdrImage
 from acquisition.roi import RoiReading, channel_list, reduce_roi
+from model.errors import InputError
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics_types import RigPose
 from rig.run.measuring.measure import CaptureSettings, Reading
@@ -43,7 +44,7 @@ TILE_KEYS = ("tile", "theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg", "li
 MAX_WINDOW_SNR = 1e5
 
 
-class ImageModeError(ValueError):
+class ImageModeError(InputError, ValueError):
     """Image mode cannot read this camera's frames as tiles (a frame not covering the window, a raw odd tile)."""
 
 
