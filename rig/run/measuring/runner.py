@@ -416,12 +416,8 @@ class Runner:
             image = str(self.store.save_image(f"point_{point.index:05d}", reading.hdr.radiance,
                                               variance=reading.hdr.variance).name)  # fmt: skip
         self.store.append({
-            "kind": "point", "index": point.index, "position": pos,
-            "target_deg": [_f(v) for v in point.directions_deg],
-            "theta_i_deg": _f(float(d.theta_i)), "phi_i_deg": _f(float(d.phi_i)),
-            "theta_o_deg": _f(float(d.theta_o)), "phi_o_deg": _f(float(d.phi_o)),
-            "joints_deg": {k: _f(float(v)) for k, v in actual.as_dict().items()},
-            **self._reading_fields(reading), "image": image, **self._times(t0, t1),
+            **self.point_head(point, pos, d, actual), **self._reading_fields(reading), "image": image,
+            **self._times(t0, t1),
             **self._uncertainty(actual, after, d), **self._distance(actual), **tiles,
         })  # fmt: skip
         self._measured += 1
@@ -440,6 +436,16 @@ class Runner:
         with whole_frames(self.camera):
             reading = self._read(level, shot.capture, shot.camera)
         return reading, shot.record(reading)
+
+    def point_head(self, point: PlannedPoint, pos: int, d: Directions, joints: Joints) -> dict[str, Any]:
+        """A point record's first fields: its index, target and measured directions (deg), joints (deg)."""
+        return {
+            "kind": "point", "index": point.index, "position": pos,
+            "target_deg": [_f(v) for v in point.directions_deg],
+            "theta_i_deg": _f(float(d.theta_i)), "phi_i_deg": _f(float(d.phi_i)),
+            "theta_o_deg": _f(float(d.theta_o)), "phi_o_deg": _f(float(d.phi_o)),
+            "joints_deg": {k: _f(float(v)) for k, v in joints.as_dict().items()},
+        }  # fmt: skip
 
     def _uncertainty(self, before: Joints, after: Mapping[str, float], measured: Directions) -> dict[str, Any]:
         """The directions' covariances (rig.instrument.direction_uncertainty) for the journal."""

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import math
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -36,6 +35,7 @@ from acquisition.frame import Camera, Frame
 from acquisition.hdr.merge import HdrFlag
 from rig.instrument.alignment import aligned_forward
 from rig.instrument.kinematics import Joints
+from rig.instrument.kinematics_types import Directions
 from rig.instrument.links.base import ScanLink
 from rig.run.measuring.measure import Level, Reading
 from rig.run.planning.plan import PlannedPoint
@@ -115,6 +115,10 @@ class ScanHost(Protocol):
     def _event(self, what: str, message: str, **extra: Any) -> None: ...
 
     def _reading_fields(self, reading: Reading) -> dict[str, Any]: ...
+
+    def point_head(self, point: PlannedPoint, pos: int, d: Directions, joints: Joints) -> dict[str, Any]:
+        """A point record's first fields (the runner's)."""
+        ...
 
     def _times(self, start: float, end: float) -> dict[str, Any]: ...
 
@@ -246,19 +250,10 @@ class Scanner:
         d = aligned_forward(h.geometry, joints, h.alignment)
         offset = h.now() - h.clock.now()
         h.store.append({
-            "kind": "point", "index": point.index, "position": pos,
-            "target_deg": [_f(v) for v in point.directions_deg],
-            "theta_i_deg": _f(float(d.theta_i)), "phi_i_deg": _f(float(d.phi_i)),
-            "theta_o_deg": _f(float(d.theta_o)), "phi_o_deg": _f(float(d.phi_o)),
-            "joints_deg": {k: _f(float(v)) for k, v in joints.as_dict().items()},
-            **h._reading_fields(reading), "image": None, **h._times(t0 + offset, end + offset),
+            **h.point_head(point, pos, d, joints), **h._reading_fields(reading), "image": None,
+            **h._times(t0 + offset, end + offset),
             **h._uncertainty(joints, travel, d), **h._distance(joints),
             "scan": {"before": [before.t_s, before.joints], "after": [after.t_s, after.joints],
                      "exposure_start_s": t0, "exposure_end_s": end},
         })  # fmt: skip
         return reading
-
-
-def _f(x: float) -> float:
-    """``x`` rounded to 9 decimals for the journal (-0.0 as 0.0)."""
-    return float(np.round(float(x), 9)) + 0.0 if math.isfinite(float(x)) else float(x)
