@@ -112,6 +112,14 @@ class ScanHost(Protocol):
 
     def _read(self, previous: Level | None, capture: Any = None, camera: Camera | None = None) -> Reading: ...
 
+    def planned_level(self, point: PlannedPoint, previous: Level | None) -> Level | None:
+        """The level to plan ``point`` from: predicted ahead (rig.run.measuring.exposure_ahead), else ``previous``."""
+        ...
+
+    def observed(self, point: PlannedPoint, reading: Reading) -> None:
+        """Teach the level's predictors what ``point`` measured."""
+        ...
+
     def _event(self, what: str, message: str, **extra: Any) -> None: ...
 
     def _reading_fields(self, reading: Reading) -> dict[str, Any]: ...
@@ -191,7 +199,8 @@ class Scanner:
             h.link.move_to(legs[0])
             h._sides = {}  # no one-sided approach during a scan: its play stays in the uncertainty
             for pos in rest:
-                exposure = scan_exposure(level, h.capture)
+                # Planned ahead where a model or an earlier pass predicts this point, else from the last frame.
+                exposure = scan_exposure(h.planned_level(points[pos], level) or level, h.capture)
                 blur = speed * exposure
                 if blur > BLUR_FRACTION * step and not warned:
                     warned = True
@@ -200,6 +209,7 @@ class Scanner:
                 got = self._frame(pos, points[pos], level, exposure, (joint, direction * speed))
                 if got is None:  # clipped: this point and the rest are measured at rest
                     break
+                h.observed(points[pos], got)
                 level = got.level
                 measured.append(pos)
         finally:
