@@ -6,7 +6,8 @@ always; that reading's level plans the scan's exposure. ``Scanner.follow`` then 
 scan speed (``ScanLink.set_speed``: a Dynamixel's Profile Velocity, a GRBL's feed), commands the run's last pose
 once, and, while the arm moves, takes one frame per remaining point: it waits until the read-back says the
 joint is half an exposure's travel short of the point, then shoots one exposure (and its darks) planned from the
-previous frame's level, never above ``SCAN_SAFETY`` of saturation (a frame that clips anyway is dropped, and
+previous frame's level (or that point's level predicted ahead, ``rig.run.measuring.exposure_ahead``), never above
+``SCAN_SAFETY`` of saturation (a frame that clips anyway is dropped, and
 the runner measures that point at rest).
 
 Each frame's directions come from the joints interpolated to the exposure's middle, linearly between the
