@@ -144,6 +144,9 @@ def load_model_source(sweep_path: str | Path, given: str) -> ModelSource:
     where = _Where(Path(sweep_path), "exposure_model", given)
     expected = "expected gonio analyze's fit.json or export/material.json (a model and its parameters)"
     p = where.path
+    if p.is_dir():
+        raise where.error(f"{p} is a directory ({expected}, such as {p / 'analysis' / 'fit.json'}; an earlier run's "
+                          "directory itself is exposure_from's)")  # fmt: skip
     if not p.is_file():
         raise where.error(f"no such file {p} ({expected})")
     try:

@@ -119,7 +119,10 @@ def test_a_models_signal_is_its_brdf_times_the_incidence_cosine_and_nothing_past
 
 def _model_file(tmp_path: Path, doc: Any, name: str = "fit.json") -> str:
     path = tmp_path / name
-    path.write_text(doc if isinstance(doc, str) else json.dumps(doc))
+    if isinstance(doc, bytes):
+        path.write_bytes(doc)
+    else:
+        path.write_text(doc if isinstance(doc, str) else json.dumps(doc))
     return name
 
 
@@ -135,6 +138,7 @@ def test_fit_json_and_material_json_both_load(tmp_path: Path) -> None:
 @pytest.mark.parametrize(("doc", "message"), [
     (None, "no such file"),
     ("{not json", "is not JSON"),
+    (b"\x89PNG\r\n\x1a\n\xff\xfe", "cannot read"),
     ({"chosen": "lambert"}, "holds no model"),
     ({"model": "Sparkle", "params": {}}, "Sparkle"),
     ({"model": "Lambert", "params": {"rho_d": "a lot"}}, "rho_d"),
@@ -148,6 +152,12 @@ def test_a_bad_model_file_is_an_input_error_naming_sweep_key_file_and_what_was_e
     text = str(err.value)
     assert "sweep.toml: capture.exposure_model = " in text and name in text
     assert err.value.exit_code == 2
+
+
+def test_a_run_directory_as_the_model_says_where_its_fit_is(tmp_path: Path) -> None:
+    (tmp_path / "coarse").mkdir()
+    with pytest.raises(ConfigError, match=r"is a directory .*coarse/analysis/fit\.json.*exposure_from"):
+        load_sources(tmp_path / "sweep.toml", None, "coarse")
 
 
 def test_a_bad_pass_is_an_input_error_naming_what_was_expected(tmp_path: Path) -> None:
