@@ -6,7 +6,8 @@ always; that reading's level plans the scan's exposure. ``Scanner.follow`` then 
 scan speed (``ScanLink.set_speed``: a Dynamixel's Profile Velocity, a GRBL's feed), commands the run's last pose
 once, and, while the arm moves, takes one frame per remaining point: it waits until the read-back says the
 joint is half an exposure's travel short of the point, then shoots one exposure (and its darks) planned from the
-previous frame's level, never above ``SCAN_SAFETY`` of saturation (a frame that clips anyway is dropped, and
+previous frame's level (or that point's level predicted ahead, ``rig.run.measuring.exposure_ahead``), never above
+``SCAN_SAFETY`` of saturation (a frame that clips anyway is dropped, and
 the runner measures that point at rest).
 
 Each frame's directions come from the joints interpolated to the exposure's middle, linearly between the
@@ -112,6 +113,14 @@ class ScanHost(Protocol):
 
     def _read(self, previous: Level | None, capture: Any = None, camera: Camera | None = None) -> Reading: ...
 
+    def planned_level(self, point: PlannedPoint, previous: Level | None) -> Level | None:
+        """The level to plan ``point`` from: predicted ahead (rig.run.measuring.exposure_ahead), else ``previous``."""
+        ...
+
+    def observed(self, point: PlannedPoint, reading: Reading) -> None:
+        """Teach the level's predictors what ``point`` measured."""
+        ...
+
     def _event(self, what: str, message: str, **extra: Any) -> None: ...
 
     def _reading_fields(self, reading: Reading) -> dict[str, Any]: ...
@@ -191,7 +200,8 @@ class Scanner:
             h.link.move_to(legs[0])
             h._sides = {}  # no one-sided approach during a scan: its play stays in the uncertainty
             for pos in rest:
-                exposure = scan_exposure(level, h.capture)
+                # Planned ahead where a model or an earlier pass predicts this point, else from the last frame.
+                exposure = scan_exposure(h.planned_level(points[pos], level) or level, h.capture)
                 blur = speed * exposure
                 if blur > BLUR_FRACTION * step and not warned:
                     warned = True
@@ -200,6 +210,7 @@ class Scanner:
                 got = self._frame(pos, points[pos], level, exposure, (joint, direction * speed))
                 if got is None:  # clipped: this point and the rest are measured at rest
                     break
+                h.observed(points[pos], got)
                 level = got.level
                 measured.append(pos)
         finally:
