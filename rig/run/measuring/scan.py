@@ -7,8 +7,10 @@ scan speed (``ScanLink.set_speed``: a Dynamixel's Profile Velocity, a GRBL's fee
 once, and, while the arm moves, takes one frame per remaining point: it waits until the read-back says the
 joint is half an exposure's travel short of the point, then shoots one exposure (and its darks) planned from the
 previous frame's level (or that point's level predicted ahead, ``rig.run.measuring.exposure_ahead``), never above
-``SCAN_SAFETY`` of saturation (a frame that clips anyway is dropped, and
-the runner measures that point at rest).
+``SCAN_SAFETY`` of saturation (a frame that clips anyway is dropped, and the runner measures that point at rest).
+The arm comes to rest where the device rounds the run's end to (a whole count or step, ``ScanLink.stops_at``),
+which may be short of it: the last frame is aimed no further than ``END_SLACK_DEG`` short of that resting place,
+which a rounded read-back may never show exactly.
 
 Each frame's directions come from the joints interpolated to the exposure's middle, linearly between the
 time-stamped read-backs just before and just after the frame (``interpolate``); the exposure is taken to end
@@ -47,6 +49,9 @@ BLUR_FRACTION = 0.5
 SCAN_SAFETY = 0.25
 #: Longest clock step (s) between read-backs while waiting for the arm to reach a frame's start.
 POLL_S = 0.05
+#: How far short (deg) of where the arm comes to rest the last frame of a run is aimed: read-backs are rounded
+#: (GRBL prints its unit to three decimals), so one may never quite show the resting place itself.
+END_SLACK_DEG = 0.01
 
 
 class ScanTooFast(UserWarning):
@@ -194,6 +199,9 @@ class Scanner:
         if len(legs) != 1:  # the straight sweep is not safe: stop and go instead
             return level, []
         speed = link.set_speed({joint: self.speed})[joint]
+        # The arm comes to rest on the device's whole count or step nearest the run's end, which may fall short of
+        # it: the last frame is aimed there, or the arm would be waited for until the move times out.
+        end = link.stops_at(legs[0])[joint]
         measured: list[int] = []
         warned = False
         try:
@@ -206,7 +214,10 @@ class Scanner:
                 if blur > BLUR_FRACTION * step and not warned:
                     warned = True
                     self._too_fast(blur, step, exposure, speed)
-                self._reach(joint, float(points[pos].joints.as_dict()[joint]) - direction * blur / 2, direction, speed)
+                aim = float(points[pos].joints.as_dict()[joint])
+                if pos == rest[-1] and direction * (end - aim) < END_SLACK_DEG:
+                    aim = end - direction * END_SLACK_DEG
+                self._reach(joint, aim - direction * blur / 2, direction, speed)
                 got = self._frame(pos, points[pos], level, exposure, (joint, direction * speed))
                 if got is None:  # clipped: this point and the rest are measured at rest
                     break
