@@ -374,7 +374,8 @@ class Capture(Strict):
     #: Image mode's tile side in pixels (None: rig.run.measuring.tiles.DEFAULT_TILE_PX).
     tile_px: Annotated[int, Field(ge=1, le=512)] | None = None
     #: "stop": stop and go, every point measured at rest; "continuous": runs of points that differ in one joint are
-    #: scanned at constant speed while the camera takes one frame per point (rig.run.measuring.scan).
+    #: scanned at constant speed while the camera takes one frame per point (rig.run.measuring.scan); in image mode
+    #: each frame's tiles are samples, each with the blur along its own directions.
     motion: Literal["stop", "continuous"] = "stop"
     #: The scanning joint's constant speed (deg/s of joint) in continuous motion; None: DEFAULT_SCAN_SPEED_DEG_S.
     #: Bounded well below any axis's top speed: a frame blurs over speed x exposure.
@@ -400,9 +401,6 @@ class Capture(Strict):
             raise ValueError(f"scan_speed_deg_s = {self.scan_speed_deg_s:g} has no meaning with motion = "
                              f'"{self.motion}" (every point is measured at rest): set motion = "continuous" or '
                              "leave scan_speed_deg_s out")  # fmt: skip
-        if self.motion == "continuous" and self.mode == "image":
-            raise ValueError('motion = "continuous" with mode = "image": continuous scans read the ROI only (point '
-                             'mode) so far; use mode = "point" or motion = "stop"')  # fmt: skip
         return self
 
 

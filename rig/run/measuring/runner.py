@@ -45,7 +45,7 @@ from rig.instrument.alignment import Alignment, aligned_forward, aligned_pose, l
 from rig.instrument.axis import Axis
 from rig.instrument.calibration_file import GeometryCalibration
 from rig.instrument.clock import Clock
-from rig.instrument.direction_uncertainty import direction_covariances
+from rig.instrument.direction_uncertainty import direction_covariances, travel_variance_deg2
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints
 from rig.instrument.kinematics_types import Directions
@@ -282,11 +282,11 @@ class Runner:
                     last_ref = self._reference(pos, last_ref)
                 if point.index in done or point.index in swept:
                     continue
-                reading = self._point(pos, point, self.planned_level(point, level))
+                reading, plan_level = self._point(pos, point, self.planned_level(point, level))
                 self.observed(point, reading)
                 level, scanned = reading.level, [pos]
                 if scan is not None:  # continuous motion: the points a scan from here reaches, measured moving
-                    level, more = scan.follow(pos, level, done, slots)
+                    level, more = scan.follow(pos, level, done, slots, plan_level)
                     swept.update(self.plan.points[p].index for p in more)
                     scanned += more
                 for _ in scanned:
@@ -407,11 +407,16 @@ class Runner:
         raise AssertionError("unreachable")
 
     # -- one point, one reference ---------------------------------------------------------------------
-    def _point(self, pos: int, point: PlannedPoint, level: Level | None) -> Reading:
+    def _point(self, pos: int, point: PlannedPoint, level: Level | None) -> tuple[Reading, Level]:
+        """Measure ``point`` at rest: its reading, and the level a scan from it plans its first frame from."""
         actual = self._move(point.joints, point.via)
         d = aligned_forward(self.geometry, actual, self.alignment)
         t0 = self.now()
-        reading, tiles = self._read_image(actual, level) if self.capture.image else (self._read(level), {})
+        if self.capture.image:
+            reading, tiles, plan_level = self._read_image(actual, level)
+        else:
+            reading = self._read(level)
+            tiles, plan_level = {}, reading.level
         t1 = self.now()
         fault: LinkError | None = None
         try:  # where the axes stood at the end: how far they moved during the frames
@@ -430,19 +435,22 @@ class Runner:
         self._measured += 1
         if fault is not None:
             raise fault
-        return reading
+        return reading, plan_level
 
-    def _read_image(self, actual: Joints, level: Level | None) -> tuple[Reading, dict[str, Any]]:
-        """Image mode's reading of the whole footprint and its tiles' journal table (``image_capture``)."""
+    def _read_image(self, actual: Joints, level: Level | None) -> tuple[Reading, dict[str, Any], Level]:
+        """Image mode's reading of the whole footprint, its tiles' journal table (``image_capture``), and the
+        level of its brightest tile (a scan's first frame is planned from it)."""
         image = self.capture.image
         assert image is not None
         shot = plan_shot(self.camera, self.capture, self.geometry, aligned_pose(self.geometry, actual, self.alignment))
         if shot is None:  # no whole tile on the sample (a grazing view): the point's ROI, and no samples
             reading = self._read(level, dataclasses.replace(self.capture, image=None))
-            return reading, {"tiles": {k: [] for k in TILE_KEYS}, "tile_px": image.tile_px, "tiles_grazing": 0}
+            empty = {"tiles": {k: [] for k in TILE_KEYS}, "tile_px": image.tile_px, "tiles_grazing": 0}
+            return reading, empty, reading.level
         with whole_frames(self.camera):
             reading = self._read(level, shot.capture, shot.camera)
-        return reading, shot.record(reading)
+        scanning = self.capture.scan_speed_deg_s is not None  # only a scan plans from it
+        return reading, shot.record(reading), shot.brightest_level(reading) if scanning else reading.level
 
     def point_head(self, point: PlannedPoint, pos: int, d: Directions, joints: Joints) -> dict[str, Any]:
         """A point record's first fields: its index, target and measured directions (deg), joints (deg), and what
@@ -481,11 +489,10 @@ class Runner:
 
     def _uncertainty(self, before: Joints, after: Mapping[str, float], measured: Directions) -> dict[str, Any]:
         """The directions' covariances (rig.instrument.direction_uncertainty) for the journal."""
-        variance = {}
-        for name, value in before.as_dict().items():
-            moved = float(after.get(name, value)) - float(value)
-            variance[name] = (self._resolution.get(name, 0.0) ** 2 / 12.0 + moved * moved / 12.0
-                              + self.backlash.variance_deg2(name, self._sides))  # fmt: skip
+        travel = travel_variance_deg2(before.as_dict(), after)
+        variance = {name: (self._resolution.get(name, 0.0) ** 2 / 12.0 + moved
+                           + self.backlash.variance_deg2(name, self._sides))
+                    for name, moved in travel.items()}  # fmt: skip
         cal = self.calibration
         angles, tangent = direction_covariances(
             self.geometry, before, self.alignment, variance, cal.names if cal else (),

@@ -44,8 +44,6 @@ def test_motion_defaults_to_stop_and_its_keys_are_checked() -> None:
         _sweep(motion="continuous", scan_speed_deg_s=0.0)
     with pytest.raises(ConfigError, match="motion"):
         _sweep(motion="sweeping")
-    with pytest.raises(ConfigError, match='continuous scans read the ROI only'):
-        _sweep(motion="continuous", mode="image")
 
 
 def test_interpolation_is_linear_between_time_stamped_read_backs() -> None:
