@@ -45,7 +45,7 @@ MISALIGNED = {"light_zero_deg": 0.5, "camera_zero_deg": -0.3, "tilt_zero_deg": 0
 
 
 def small_rig(link: str, tmp: Path) -> Path:
-    """The shipped hardware rig file of ``link`` with the small sensor's ROI, a reference every 3 points, quick polls."""
+    """The shipped hardware rig file of ``link``: the small sensor's ROI, a reference every 3 points, quick polls."""
     from tests.rehearsal.harness import set_keys
 
     path = tmp / f"shipped_{link}.toml"

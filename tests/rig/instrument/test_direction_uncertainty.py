@@ -47,4 +47,5 @@ def test_other_directions_get_their_own_covariances_from_the_same_propagation() 
     for k, at in enumerate((joints, shifted(joints))):
         own_a, own_t = direction_covariances(g, at, alignment, variance)
         assert np.allclose(cov_a[k], own_a, rtol=1e-9, atol=1e-15) and np.allclose(cov_t[k], own_t, atol=1e-15)
-    assert not np.allclose(cov_t[0], cov_t[1], rtol=1e-2, atol=0.0)  # the two directions move differently with the joints
+    # The two directions move differently with the joints.
+    assert not np.allclose(cov_t[0], cov_t[1], rtol=1e-2, atol=0.0)
