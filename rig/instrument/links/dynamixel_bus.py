@@ -345,14 +345,17 @@ class DynamixelBus:
                         return value, error
                     attempt += 1
                     silent[self._failed_id] = silent.get(self._failed_id, 0) + 1
-                    # A late or corrupt reply may still be arriving; drop it so the retry starts clean.
-                    late = self._drain() > 0 and result == sdk.COMM_RX_TIMEOUT
+                    # A late or corrupt reply may still be arriving; drop it so the retry starts clean. A reply cut
+                    # off by the window (the SDK calls a partial one corrupt) whose rest arrives now is late too: a
+                    # loaded host or an adapter's latency timer delivers a reply in pieces.
+                    drained = self._drain()
+                    late = drained > 0 and result in (sdk.COMM_RX_TIMEOUT, sdk.COMM_RX_CORRUPT)
                     if patient and replies:
                         self._count_failure(what, late)
                     worst = max(silent.values())
                     waited = self._now() - started
                     # Past the retries, only a window that can still widen is worth waiting on (a slow host).
-                    slow = (patient and result == sdk.COMM_RX_TIMEOUT and waited < self.reply_patience_s
+                    slow = (patient and (result == sdk.COMM_RX_TIMEOUT or late) and waited < self.reply_patience_s
                             and scale < widest)  # fmt: skip
                     if result not in _RETRYABLE or (worst > allowed and not slow):
                         raise CommunicationError(
@@ -361,7 +364,7 @@ class DynamixelBus:
                             f"{self._loss_text()}; check baud rate, id and wiring)"
                         )
                     self.comm_retries_used += 1
-                    if result == sdk.COMM_RX_TIMEOUT:
+                    if result == sdk.COMM_RX_TIMEOUT or late:
                         # This transaction only, and by how often the same servo was silent: a slow or dead servo
                         # gets ever longer windows, losses spread over a group's servos hardly any.
                         scale = min(max(self.window_scale, kept * 2.0 ** min(worst, 64)), widest)
