@@ -104,3 +104,21 @@ def test_a_sweep_file_s_auto_is_decided_at_start_written_in_the_manifest_and_res
     resume_run(tmp_path / "run", progress=False)
     assert [r["tile"] for r in read_rows(tmp_path / "run" / "samples.csv")] == [r["tile"] for r in rows]
     assert sum(r["kind"] == "point" for r in RunStore.read(tmp_path / "run").records()) == 1
+
+
+@pytest.mark.mitsuba
+def test_gonio_plan_and_run_print_what_auto_chose(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from gonio import cli
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text('[camera]\nresolution = [128, 128]\n\n[reference]\nevery = 0\n')
+    sweep = tmp_path / "sweep.toml"
+    sweep.write_text('[sweep]\nkind = "in_plane"\ntheta_i_deg = [20.0]\ntheta_o_deg = [30.0]\n\n'
+                     '[capture]\nmode = "auto"\ntile_px = 16\n')  # fmt: skip
+    assert cli.main(["plan", str(sweep), "--rig", str(rig), "--quiet"]) == 0
+    planned = capsys.readouterr().out
+    assert "capture mode image, motion stop: the camera resolves the sample into ~" in planned and "16 px" in planned
+    assert cli.main(["run", str(sweep), "--rig", str(rig), "--out", str(tmp_path / "run"), "--quiet"]) == 0
+    assert "capture mode image, motion stop" in capsys.readouterr().err
+    manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
+    assert manifest["sweep"]["capture"] == {**manifest["sweep"]["capture"], "mode": "image", "tile_px": 16}
