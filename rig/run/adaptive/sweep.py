@@ -309,7 +309,8 @@ def _rounds(
     while True:
         r = len(result.rounds)
         directory, here, points = out / f"round-{r:02d}", round_rig(rig, r), pool[todo]
-        choice = round_choice(here, s, r, make_plan(here, _round_sweep(points, directory.name, {}, None)))
+        planned = make_plan(here, _round_sweep(points, directory.name, {"target_snr": s.target_snr}, None))
+        choice = round_choice(here, s, r, planned)
         new_rows, rig_s = measure_points(here, points, directory, s.target_snr, doc.get("metadata"),
                                          capture=round_capture(s, choice))  # fmt: skip
         pool = np.delete(pool, todo, axis=0)

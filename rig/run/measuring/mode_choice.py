@@ -3,10 +3,12 @@
 Image or point. Image mode reads the sample's whole footprint and makes every tile_px x tile_px tile a sample,
 each at the SNR goal, for about one capture's rig time (its exposure is planned for a tile, which has more
 pixels than a point's ROI). It pays when the camera resolves the footprint into many tiles: the rule is image
-when the median estimated tile count over up to ``PROBE_POSES`` of the plan's poses (``rig.run.measuring.
-footprint``) is at least ``MIN_IMAGE_TILES``, else point. Sixteen tiles (4 x 4) is the line: below it the
-"image" is a few samples with footprints a hundred times a point's ROI (their directions' spread is the
-angular error the fit then carries), for the cost of reading a window instead of the ROI.
+when the median tile count over up to ``PROBE_POSES`` of the plan's poses is at least ``MIN_IMAGE_TILES``, else
+point. The count is image mode's own on a sensor of at most ``GRID`` tiles a side (few tiles: cheap), else the
+estimate on cells of tiles (``rig.run.measuring.footprint``: exact to a few cells at the sample's edge). Sixteen
+tiles (4 x 4) is the line: below it the "image" is a few samples with footprints a hundred times a point's ROI
+(their directions' spread is the angular error the fit then carries), for the cost of reading a window instead
+of the ROI.
 
 Stop or continuous. The runner scans only runs of consecutive planned points that differ in one joint,
 monotonically (``rig.run.measuring.scan.scan_run``); a run's first point is measured at rest and the scan's
@@ -25,9 +27,9 @@ import numpy as np
 
 from rig.instrument.alignment import aligned_pose
 from rig.instrument.kinematics import Joints
-from rig.run.measuring.footprint import footprint_cells
+from rig.run.measuring.footprint import cell_side, footprint_cells
 from rig.run.measuring.scan import scan_run
-from rig.run.measuring.tiles import DEFAULT_TILE_PX, ImageSettings
+from rig.run.measuring.tiles import DEFAULT_TILE_PX, ImageSettings, tile_geometry
 from rig.run.planning.result import Plan
 
 #: Image mode when a capture gives at least this many tiles (median over the probed poses).
@@ -69,10 +71,13 @@ def tiles_per_capture(rig: Any, plan: Plan, tile_px: int | None = None) -> float
     image = ImageSettings(tile_px=tile_px or DEFAULT_TILE_PX, resolution=tuple(rig.file.camera.resolution),
                           shape=rig.sample_shape)  # fmt: skip
     picks = np.unique(np.linspace(0, len(plan.points) - 1, min(PROBE_POSES, len(plan.points))).round().astype(int))
+    # A sensor of at most GRID tiles a side is counted exactly (few tiles, cheap, and there the line is near).
+    exact = cell_side(image) == 1
     counts = []
     for pos in picks:
         pose = aligned_pose(rig.geometry, plan.points[int(pos)].joints, rig.alignment)
-        counts.append(footprint_cells(rig.geometry, pose, image).count)
+        counts.append(tile_geometry(rig.geometry, pose, image).count if exact else
+                      footprint_cells(rig.geometry, pose, image).count)  # fmt: skip
     return float(np.median(counts))
 
 

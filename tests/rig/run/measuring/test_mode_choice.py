@@ -13,7 +13,13 @@ from rig.instrument.kinematics import inverse, require, world_pose
 from rig.run.config.files import ConfigError, parse
 from rig.run.config.schema import SweepFile
 from rig.run.measuring.footprint import footprint_cells
-from rig.run.measuring.mode_choice import MIN_IMAGE_TILES, MIN_SCAN_POINTS, choose_motion, scan_runs
+from rig.run.measuring.mode_choice import (
+    MIN_IMAGE_TILES,
+    MIN_SCAN_POINTS,
+    choose_motion,
+    scan_runs,
+    tiles_per_capture,
+)
 from rig.run.measuring.tiles import DEFAULT_TILE_PX, ImageSettings, tile_geometry
 from rig.run.session import make_plan, resolve_mode, resume_run, start_run
 from rig.run.storage.store import RunStore
@@ -54,6 +60,15 @@ def test_auto_is_image_where_the_camera_resolves_the_sample_into_many_tiles(reso
     scan = _auto(motion="continuous")
     _, by_motion = resolve_mode(rig, scan, make_plan(rig, scan))
     assert by_motion is not None and by_motion.mode == "point" and "ROI" in by_motion.reason
+
+
+def test_a_small_sensor_s_tiles_are_counted_as_image_mode_counts_them() -> None:
+    rig = sim_rig(camera={"resolution": [64, 64]})
+    plan = make_plan(rig, in_plane_sweep([20.0], [30.0]))
+    g = rig.geometry
+    exact = tile_geometry(g, world_pose(g, require(inverse(g, 20.0, 0.0, 30.0, 180.0))),
+                          ImageSettings(tile_px=8, resolution=(64, 64))).count  # fmt: skip
+    assert tiles_per_capture(rig, plan, 8) == exact
 
 
 def test_a_sweep_file_s_auto_keys_are_checked() -> None:
@@ -114,11 +129,11 @@ def test_gonio_plan_and_run_print_what_auto_chose(tmp_path: Path, capsys: pytest
     rig.write_text('[camera]\nresolution = [128, 128]\n\n[reference]\nevery = 0\n')
     sweep = tmp_path / "sweep.toml"
     sweep.write_text('[sweep]\nkind = "in_plane"\ntheta_i_deg = [20.0]\ntheta_o_deg = [30.0]\n\n'
-                     '[capture]\nmode = "auto"\ntile_px = 16\n')  # fmt: skip
+                     '[capture]\nmode = "auto"\ntile_px = 8\n')  # fmt: skip
     assert cli.main(["plan", str(sweep), "--rig", str(rig), "--quiet"]) == 0
     planned = capsys.readouterr().out
-    assert "capture mode image, motion stop: the camera resolves the sample into ~" in planned and "16 px" in planned
+    assert "capture mode image, motion stop: the camera resolves the sample into ~" in planned and "8 px" in planned
     assert cli.main(["run", str(sweep), "--rig", str(rig), "--out", str(tmp_path / "run"), "--quiet"]) == 0
     assert "capture mode image, motion stop" in capsys.readouterr().err
     manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
-    assert manifest["sweep"]["capture"] == {**manifest["sweep"]["capture"], "mode": "image", "tile_px": 16}
+    assert manifest["sweep"]["capture"] == {**manifest["sweep"]["capture"], "mode": "image", "tile_px": 8}
