@@ -64,9 +64,6 @@ def _check_mode_options(args: argparse.Namespace, bad: Callable[[str, object, st
         if args.motion != "continuous":
             raise CliError(f"--scan-speed {args.scan_speed:g}: has no meaning with --motion stop (every capture at "
                            "rest): use --motion continuous, or leave --scan-speed out")  # fmt: skip
-    if args.mode == "image" and args.motion == "continuous":
-        raise CliError("--mode image with --motion continuous: continuous scans read the ROI only (point mode) so "
-                       "far; use --mode point or auto, or --motion stop")  # fmt: skip
 
 
 def _adaptive(args: argparse.Namespace) -> int:

@@ -56,6 +56,7 @@ def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
     """The capture settings of a run from the rig's camera and the sweep's [capture] table."""
     from acquisition.exposure.spec import CameraTiming
     from rig.run.calibrate import camera_flat_field, camera_noise
+    from rig.run.measuring.exposure_sources import load_sources
     from rig.run.measuring.measure import CaptureSettings
 
     cam, cap = rig.file.camera, sweep.file.capture
@@ -72,6 +73,7 @@ def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
         flat_field=camera_flat_field(rig),
         image=_image_settings(rig, sweep),
         scan_speed_deg_s=(cap.scan_speed_deg_s or DEFAULT_SCAN_SPEED_DEG_S) if cap.motion == "continuous" else None,
+        exposure_sources=load_sources(sweep.path, cap.exposure_from, cap.exposure_model),
     )
 
 

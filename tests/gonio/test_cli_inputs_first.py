@@ -71,8 +71,7 @@ def test_adaptive_blames_each_bad_option_by_name(
      (["--motion", "scan"], "argument --motion: invalid choice: 'scan'"),
      (["--tile-px", "four", "--mode", "image"], "argument --tile-px: invalid int value: 'four'"),
      (["--tile-px", "4"], "--tile-px 4: has no meaning with --mode point"),
-     (["--scan-speed", "3"], "--scan-speed 3: has no meaning with --motion stop"),
-     (["--mode", "image", "--motion", "continuous"], "--mode image with --motion continuous: continuous scans read")],
+     (["--scan-speed", "3"], "--scan-speed 3: has no meaning with --motion stop")],
 )  # fmt: skip
 def test_adaptive_mode_options_that_do_not_go_together_are_refused_by_name(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], options: list[str], message: str

@@ -8,8 +8,8 @@ the planner chooses per round (``rig.run.measuring.mode_choice`` holds the rules
   whole lobe for a round's rig time; else point mode;
 - later rounds in point mode at the directions the design chose: a point's small footprint is where the fit
   is least certain, not a frame's worth of directions around it;
-- a point-mode round continuous when its plan holds a scan run of at least ``MIN_SCAN_POINTS`` points in one
-  joint and ``motion = "continuous"`` allows it. ``motion`` is the most the planner may use: continuous
+- a round (in either mode) continuous when its plan holds a scan run of at least ``MIN_SCAN_POINTS`` points in
+  one joint and ``motion = "continuous"`` allows it. ``motion`` is the most the planner may use: continuous
   motion moves the arm while the camera shoots (motion blur in the directions' uncertainty, a link that can
   scan), so it is never chosen unless asked for. The design's points are scattered over the hemisphere and
   rarely line up in one joint, so most rounds stay at rest even then.
@@ -51,13 +51,11 @@ def round_choice(rig: Any, s: AdaptiveSettings, index: int, plan: Plan) -> ModeC
         return ModeChoice(s.mode, s.motion, why, tile_px=k if s.mode == "image" else None)
     if index == 0:
         first = choose_image(rig, plan, s.tile_px, "stop")
-        if first.mode == "image":
-            return ModeChoice("image", "stop", f"first round: {first.reason}", first.tiles, k)
-        tiles, reason = first.tiles, f"first round: {first.reason}; "
+        mode, tiles, reason = first.mode, first.tiles, f"first round: {first.reason}; "
     else:
-        tiles, reason = None, "later round: point mode at the chosen directions; "
+        mode, tiles, reason = "point", None, "later round: point mode at the chosen directions; "
     motion, why, longest = choose_motion(plan, s.motion == "continuous")
-    return ModeChoice("point", motion, reason + why, tiles, None, longest)
+    return ModeChoice(mode, motion, reason + why, tiles, k if mode == "image" else None, longest)
 
 
 def round_capture(s: AdaptiveSettings, choice: ModeChoice) -> dict[str, Any]:

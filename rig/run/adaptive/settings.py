@@ -25,8 +25,8 @@ class AdaptiveSettings:
 
     The capture mode dials mean what the sweep file's ``[capture]`` keys of the same names mean: ``mode``
     "point" or "image" for every round, or "auto" (``rig.run.adaptive.modes``: the first round in image mode
-    where the camera resolves the sample into many tiles, later rounds in point mode, continuous where a
-    round's plan has long scan runs and ``motion`` allows it); ``tile_px`` image mode's tile side (pixels,
+    where the camera resolves the sample into many tiles, later rounds in point mode, either continuous where
+    a round's plan has long scan runs and ``motion`` allows it); ``tile_px`` image mode's tile side (pixels,
     None: the default); ``motion`` "stop" or "continuous"; ``scan_speed_deg_s`` the scanning joint's speed
     (deg/s, None: the default). A capture is one pose: in image mode it gives one sample per tile, and the
     budget still counts captures.
@@ -85,7 +85,3 @@ class AdaptiveSettings:
             if self.motion != "continuous":
                 raise ValueError(f"adaptive settings: scan_speed_deg_s = {v:g} has no meaning with motion = "
                                  f"{self.motion!r} (every capture at rest): use motion 'continuous'")  # fmt: skip
-        if self.mode == "image" and self.motion == "continuous":
-            raise ValueError("adaptive settings: mode = 'image' with motion = 'continuous': continuous scans read "
-                             "the ROI only (point mode) so far; use mode 'point' or 'auto', or motion "
-                             "'stop'")  # fmt: skip

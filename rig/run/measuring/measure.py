@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -32,6 +32,9 @@ from acquisition.hdr.merge import HdrImage, merge_linear
 from acquisition.noise import SensorNoise
 from acquisition.roi import RoiError, RoiReading
 from rig.run.measuring.tiles import ImageSettings
+
+if TYPE_CHECKING:
+    from rig.run.measuring.exposure_sources import LevelSource
 
 Box = tuple[int, int, int, int]
 
@@ -54,6 +57,9 @@ class CaptureSettings:
     image: ImageSettings | None = None
     #: Continuous motion (``[capture] motion = "continuous"``): the scanning joint's speed in deg/s; None: stop and go.
     scan_speed_deg_s: float | None = None
+    #: What predicts each point's level before it is measured (``[capture] exposure_from``, ``exposure_model``), in
+    #: the order asked (rig.run.measuring.exposure_ahead); (): the previous point's level plans the next.
+    exposure_sources: tuple[LevelSource, ...] = ()
 
 
 #: A reading whose dimmest channel reaches less than this fraction of the SNR goal is topped up.

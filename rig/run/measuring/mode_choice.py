@@ -14,8 +14,8 @@ Stop or continuous. The runner scans only runs of consecutive planned points tha
 monotonically (``rig.run.measuring.scan.scan_run``); a run's first point is measured at rest and the scan's
 set-up (the speed change, one long move, the wait at its end) costs about one stop. So a run of two or three
 points saves little, and the rule is continuous when the plan, in the order the runner measures it, holds a
-run of at least ``MIN_SCAN_POINTS`` points (its first included), else stop. Image mode is never continuous
-(continuous scans read the ROI only).
+run of at least ``MIN_SCAN_POINTS`` points (its first included), else stop. The rule is the same in either mode
+(in image mode every tile of a moving frame is a sample).
 """
 
 from __future__ import annotations
@@ -97,13 +97,12 @@ def scan_runs(plan: Plan, with_references: bool = True) -> list[int]:
 
 
 def choose_image(rig: Any, plan: Plan, tile_px: int | None, motion: str) -> ModeChoice:
-    """The sweep file's ``mode = "auto"``: image when the camera resolves the footprint into enough tiles."""
+    """The sweep file's ``mode = "auto"``: image when the camera resolves the footprint into enough tiles; the
+    motion stays the file's."""
     k = tile_px or DEFAULT_TILE_PX
-    if motion == "continuous":
-        return ModeChoice("point", motion, 'motion = "continuous" scans read the ROI only (point mode)', None, k)
     n = tiles_per_capture(rig, plan, k)
     if n >= MIN_IMAGE_TILES:
-        return ModeChoice("image", "stop", f"the camera resolves the sample into ~{n:.0f} tiles of {k} px per "
+        return ModeChoice("image", motion, f"the camera resolves the sample into ~{n:.0f} tiles of {k} px per "
                           f"capture (>= {MIN_IMAGE_TILES})", n, k)  # fmt: skip
     return ModeChoice("point", motion, f"the camera resolves the sample into only ~{n:.0f} tiles of {k} px per "
                       f"capture (< {MIN_IMAGE_TILES})", n, k)  # fmt: skip

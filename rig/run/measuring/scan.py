@@ -6,8 +6,11 @@ always; that reading's level plans the scan's exposure. ``Scanner.follow`` then 
 scan speed (``ScanLink.set_speed``: a Dynamixel's Profile Velocity, a GRBL's feed), commands the run's last pose
 once, and, while the arm moves, takes one frame per remaining point: it waits until the read-back says the
 joint is half an exposure's travel short of the point, then shoots one exposure (and its darks) planned from the
-previous frame's level, never above ``SCAN_SAFETY`` of saturation (a frame that clips anyway is dropped, and
-the runner measures that point at rest).
+previous frame's level (or that point's level predicted ahead, ``rig.run.measuring.exposure_ahead``), never above
+``SCAN_SAFETY`` of saturation (in point mode a frame that clips anyway is dropped, and the runner measures that
+point at rest). The arm comes to rest where the device rounds the run's end to (a whole count or step,
+``ScanLink.stops_at``), which may be short of it: the last frame is aimed no further than ``END_SLACK_DEG`` short
+of that resting place, which a rounded read-back may never show exactly.
 
 Each frame's directions come from the joints interpolated to the exposure's middle, linearly between the
 time-stamped read-backs just before and just after the frame (``interpolate``); the exposure is taken to end
@@ -16,6 +19,19 @@ gains (speed x exposure)^2 / 12, through the runner's ``_uncertainty`` (which ad
 twelve). Blur beyond ``BLUR_FRACTION`` of the smallest step of the run warns (``ScanTooFast``), naming the blur
 and the speed that would keep it within bounds. Gear play is not taken out during a scan (the load's flank is
 not pinned by a one-sided approach): it stays in the uncertainty.
+
+In image mode (``[capture] mode = "image"``) each frame is read as image mode reads a pose
+(``rig.run.measuring.image_capture``): the camera streams whole frames, cut to the window of the tiles at the
+point's pose widened by one tile, and the tiles are those seen from the mid-exposure pose, each with its own
+directions, irradiance, standard error and footprint covariance. The blur is each tile's: the moving joint's
+(speed x exposure)^2 / 12 carried to that tile's own directions (``tiles.motion_covariance``, the propagation
+``_uncertainty`` uses) and added to its footprint covariance; the pose's own errors (encoder, play, calibration)
+are the record's, as at a stop. A frame is planned from the previous frame's brightest tile (the tile holding
+its brightest pixel: the rest reading's for the first), at ``SCAN_SAFETY`` of saturation. A frame whose tiles
+clip is kept: a clipped tile is a lower bound, as a tile saturated in every frame of a stop's bracket is (one
+frame here), the rest of the frame are samples, and the scan goes on (a ``scan_clipped_tiles`` event), the next
+frame planned shorter from the clipped tile's level. A point where no whole tile would see the sample ends the
+scan: the runner measures it at rest, as image mode measures such a pose.
 """
 
 from __future__ import annotations
@@ -33,11 +49,14 @@ from acquisition.exposure.plan import plan_exposure
 from acquisition.exposure.spec import ExposureError
 from acquisition.frame import Camera, Frame
 from acquisition.hdr.merge import HdrFlag
-from rig.instrument.alignment import aligned_forward
+from rig.instrument.alignment import aligned_forward, aligned_pose
+from rig.instrument.direction_uncertainty import travel_variance_deg2
 from rig.instrument.kinematics import Joints
 from rig.instrument.kinematics_types import Directions
 from rig.instrument.links.base import ScanLink
+from rig.run.measuring.image_capture import ImageShot, plan_shot, whole_frames
 from rig.run.measuring.measure import Level, Reading
+from rig.run.measuring.tiles import motion_covariance, with_spread
 from rig.run.planning.plan import PlannedPoint
 
 #: Motion blur (deg) a frame may have, as a fraction of the smallest step of its scan run, before ScanTooFast.
@@ -46,6 +65,9 @@ BLUR_FRACTION = 0.5
 SCAN_SAFETY = 0.25
 #: Longest clock step (s) between read-backs while waiting for the arm to reach a frame's start.
 POLL_S = 0.05
+#: How far short (deg) of where the arm comes to rest the last frame of a run is aimed: read-backs are rounded
+#: (GRBL prints its unit to three decimals), so one may never quite show the resting place itself.
+END_SLACK_DEG = 0.01
 
 
 class ScanTooFast(UserWarning):
@@ -112,6 +134,14 @@ class ScanHost(Protocol):
 
     def _read(self, previous: Level | None, capture: Any = None, camera: Camera | None = None) -> Reading: ...
 
+    def planned_level(self, point: PlannedPoint, previous: Level | None) -> Level | None:
+        """The level to plan ``point`` from: predicted ahead (rig.run.measuring.exposure_ahead), else ``previous``."""
+        ...
+
+    def observed(self, point: PlannedPoint, reading: Reading) -> None:
+        """Teach the level's predictors what ``point`` measured."""
+        ...
+
     def _event(self, what: str, message: str, **extra: Any) -> None: ...
 
     def _reading_fields(self, reading: Reading) -> dict[str, Any]: ...
@@ -168,8 +198,10 @@ class Scanner:
         joints = self.host.link.read_positions()
         return Stamp(0.5 * (t0 + self.host.clock.now()), {k: float(v) for k, v in joints.items()})
 
-    def follow(self, start: int, level: Level, done: set[int], slots: set[int]) -> tuple[Level, list[int]]:
-        """Scan on from plan position ``start`` (just measured at rest); the level and the positions measured."""
+    def follow(self, start: int, level: Level, done: set[int], slots: set[int],
+               plan_level: Level | None = None) -> tuple[Level, list[int]]:  # fmt: skip
+        """Scan on from plan position ``start`` (just measured at rest, at ``level``); the last frame's level and
+        the positions measured. ``plan_level``: what the first frame is planned from (None: ``level``)."""
         h = self.host
         run = scan_run(h.plan.points, start, done, slots, h.guard_names)
         link = h.link
@@ -185,22 +217,32 @@ class Scanner:
         if len(legs) != 1:  # the straight sweep is not safe: stop and go instead
             return level, []
         speed = link.set_speed({joint: self.speed})[joint]
+        # The arm comes to rest on the device's whole count or step nearest the run's end, which may fall short of
+        # it: the last frame is aimed there, or the arm would be waited for until the move times out.
+        end = link.stops_at(legs[0])[joint]
         measured: list[int] = []
         warned = False
+        planned = plan_level or level
         try:
             h.link.move_to(legs[0])
             h._sides = {}  # no one-sided approach during a scan: its play stays in the uncertainty
             for pos in rest:
-                exposure = scan_exposure(level, h.capture)
+                # Planned ahead where a model or an earlier pass predicts this point, else from the last frame.
+                exposure = scan_exposure(h.planned_level(points[pos], planned) or planned, h.capture)
                 blur = speed * exposure
                 if blur > BLUR_FRACTION * step and not warned:
                     warned = True
                     self._too_fast(blur, step, exposure, speed)
-                self._reach(joint, float(points[pos].joints.as_dict()[joint]) - direction * blur / 2, direction, speed)
+                aim = float(points[pos].joints.as_dict()[joint])
+                if pos == rest[-1] and direction * (end - aim) < END_SLACK_DEG:
+                    aim = end - direction * END_SLACK_DEG
+                self._reach(joint, aim - direction * blur / 2, direction, speed)
                 got = self._frame(pos, points[pos], level, exposure, (joint, direction * speed))
-                if got is None:  # clipped: this point and the rest are measured at rest
+                if got is None:  # clipped (point mode), or no tile to read: this point and the rest at rest
                     break
-                level = got.level
+                reading, planned = got
+                h.observed(points[pos], reading)
+                level = reading.level
                 measured.append(pos)
         finally:
             h.link.wait_in_position(timeout_s=h.options.move_timeout_s)
@@ -227,33 +269,66 @@ class Scanner:
             clock.sleep(min(max(remaining / speed, 1e-4), POLL_S))
 
     def _frame(self, pos: int, point: PlannedPoint, level: Level, exposure: float,
-               velocity: tuple[str, float]) -> Reading | None:  # fmt: skip
-        """One frame at ``exposure`` (s) while ``velocity`` (joint, deg/s) moves the arm, journaled as ``point``;
-        None if it clipped."""
+               velocity: tuple[str, float]) -> tuple[Reading, Level] | None:  # fmt: skip
+        """One frame at ``exposure`` (s) while ``velocity`` (joint, deg/s) moves the arm, journaled as ``point``:
+        its reading and the level the next frame is planned from; None if it is to be measured at rest instead."""
         h = self.host
         camera = _Stamped(h.camera, self._stamp, h.clock)
-        reading = h._read(level, dataclasses.replace(h.capture, exposures_s=(exposure,)), cast(Camera, camera))
+        settings = dataclasses.replace(h.capture, exposures_s=(exposure,))
+        shot: ImageShot | None = None
+        if h.capture.image is None:
+            reading = h._read(level, settings, cast(Camera, camera))
+        else:  # image mode: the window of the tiles at the point, a tile wider where the frame's pose differs
+            pose = aligned_pose(h.geometry, point.joints, h.alignment)
+            shot = plan_shot(cast(Camera, camera), settings, h.geometry, pose, margin_px=h.capture.image.tile_px)
+            if shot is None:
+                return None
+            with whole_frames(h.camera):
+                reading = h._read(level, shot.capture, shot.camera)
         before, end, frame, after = camera.light[-1]
-        flags = reading.hdr.flags
-        if h.capture.roi is not None:
-            x0, y0, x1, y1 = h.capture.roi
-            flags = flags[y0:y1, x0:x1]
-        if np.any(flags & HdrFlag.SATURATED):
+        if shot is None and self._clipped(reading):
             h._event("scan_clipped", f"point {point.index}: a scan frame clipped; measured at rest instead")
             return None
         t0 = end - frame.exposure_s
         mid = interpolate(before, after, 0.5 * (t0 + end))
         joints = Joints.from_dict({**{k: float(v) for k, v in point.joints.as_dict().items()}, **mid})
-        # The travel during the exposure, as _uncertainty reads it: variance (speed x exposure)^2 / 12. From the
-        # device's speed: two read-backs a short frame apart often read the same encoder count.
+        # The travel during the exposure: variance (speed x exposure)^2 / 12. From the device's speed: two
+        # read-backs a short frame apart often read the same encoder count.
         travel = {**mid, velocity[0]: mid[velocity[0]] + velocity[1] * frame.exposure_s}
         d = aligned_forward(h.geometry, joints, h.alignment)
         offset = h.now() - h.clock.now()
-        h.store.append({
-            **h.point_head(point, pos, d, joints), **h._reading_fields(reading), "image": None,
-            **h._times(t0 + offset, end + offset),
-            **h._uncertainty(joints, travel, d), **h._distance(joints),
-            "scan": {"before": [before.t_s, before.joints], "after": [after.t_s, after.joints],
-                     "exposure_start_s": t0, "exposure_end_s": end},
-        })  # fmt: skip
-        return reading
+        record = {**h.point_head(point, pos, d, joints), **h._reading_fields(reading), "image": None,
+                  **h._times(t0 + offset, end + offset)}  # fmt: skip
+        plan_next = reading.level
+        if shot is None:  # the blur is the pose's: _uncertainty reads the travel
+            record.update({**h._uncertainty(joints, travel, d), **h._distance(joints)})
+        else:  # the blur is each tile's, along its own directions; the pose's own errors as at a stop
+            shot, plan_next = self._tiles(shot, joints, travel, reading, point)
+            record.update({**h._uncertainty(joints, mid, d), **h._distance(joints), **shot.record(reading)})
+        h.store.append({**record, "scan": {"before": [before.t_s, before.joints], "after": [after.t_s, after.joints],
+                                           "exposure_start_s": t0, "exposure_end_s": end}})  # fmt: skip
+        return reading, plan_next
+
+    def _clipped(self, reading: Reading) -> bool:
+        """Whether a point-mode frame clipped in its ROI."""
+        flags = reading.hdr.flags
+        if self.host.capture.roi is not None:
+            x0, y0, x1, y1 = self.host.capture.roi
+            flags = flags[y0:y1, x0:x1]
+        return bool(np.any(flags & HdrFlag.SATURATED))
+
+    def _tiles(self, shot: ImageShot, joints: Joints, travel: Mapping[str, float], reading: Reading,
+               point: PlannedPoint) -> tuple[ImageShot, Level]:  # fmt: skip
+        """The frame's tiles seen from mid-exposure with the blur in their covariances, and the next plan's level."""
+        h = self.host
+        image = h.capture.image
+        assert image is not None
+        shot = shot.seen_from(h.geometry, aligned_pose(h.geometry, joints, h.alignment))
+        blur = travel_variance_deg2(joints.as_dict(), travel)
+        shot = dataclasses.replace(shot, tiles=with_spread(
+            shot.tiles, *motion_covariance(h.geometry, joints, h.alignment, image, shot.tiles, blur)))
+        clipped = [b for b in shot.frame_boxes() if np.any(reading.hdr.flags[b[1]:b[3], b[0]:b[2]] & HdrFlag.SATURATED)]
+        if clipped:  # as at a stop: a tile clipped in every frame (here, its one) is a lower bound
+            h._event("scan_clipped_tiles", f"point {point.index}: {len(clipped)} of {shot.tiles.count} tiles of a "
+                     "scan frame clipped: kept as lower bounds; the next frame is planned shorter", tiles=len(clipped))
+        return shot, shot.brightest_level(reading)

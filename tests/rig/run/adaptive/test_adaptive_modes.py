@@ -41,13 +41,13 @@ def test_the_mode_settings_are_checked_by_the_sweep_file_s_rules() -> None:
         ({"mode": "image", "tile_px": 0}, "tile_px = 0"),
         ({"scan_speed_deg_s": 3.0}, "scan_speed_deg_s = 3 has no meaning"),
         ({"motion": "continuous", "scan_speed_deg_s": 45.0}, "at most 30"),
-        ({"mode": "image", "motion": "continuous"}, "continuous scans read the ROI only"),
     ]
     for bad, match in cases:
         with pytest.raises(ValueError, match=match):
             replace(SMALL, **bad)
     ok = replace(SMALL, mode="auto", tile_px=4, motion="continuous", scan_speed_deg_s=3.0)
     assert (ok.mode, ok.tile_px, ok.motion, ok.scan_speed_deg_s) == ("auto", 4, "continuous", 3.0)
+    assert replace(SMALL, mode="image", motion="continuous").motion == "continuous"  # image frames scan too
 
 
 @pytest.mark.mitsuba
@@ -155,6 +155,10 @@ def test_auto_scans_a_point_round_only_where_its_plan_has_a_long_run_and_the_set
     assert round_choice(rig, allowed, 1, scattered).motion == "stop"
     assert round_choice(rig, replace(SMALL, mode="auto"), 1, line).motion == "stop"
     assert f">= {MIN_SCAN_POINTS}" in choice.reason
+    # The first round's image mode scans by the same rule.
+    camera = sim_rig(camera={"resolution": [128, 128]}, reference={"every": 0})
+    first = round_choice(camera, allowed, 0, make_plan(camera, in_plane_sweep([20.0], [30.0, 35.0, 40.0, 45.0, 50.0])))
+    assert (first.mode, first.motion, first.tile_px) == ("image", "continuous", 8)
     # Fixed modes are what the settings say, round after round.
     fixed = replace(SMALL, mode="point", motion="continuous")
     assert [(c.mode, c.motion) for c in (round_choice(rig, fixed, i, scattered) for i in (0, 1))] == [

@@ -56,10 +56,11 @@ def test_auto_is_image_where_the_camera_resolves_the_sample_into_many_tiles(reso
     assert choice.tile_px == DEFAULT_TILE_PX and choice.tiles is not None
     assert (choice.tiles >= MIN_IMAGE_TILES) == (mode == "image")
     assert f"{MIN_IMAGE_TILES}" in choice.reason
-    # Continuous scans read the ROI only: auto with continuous motion is point mode whatever the camera.
+    # The motion is the file's, in either mode (image frames scan too).
     scan = _auto(motion="continuous")
-    _, by_motion = resolve_mode(rig, scan, make_plan(rig, scan))
-    assert by_motion is not None and by_motion.mode == "point" and "ROI" in by_motion.reason
+    decided_scan, by_motion = resolve_mode(rig, scan, make_plan(rig, scan))
+    assert by_motion is not None and (by_motion.mode, by_motion.motion) == (mode, "continuous")
+    assert decided_scan.file.capture.motion == "continuous"
 
 
 def test_a_small_sensor_s_tiles_are_counted_as_image_mode_counts_them() -> None:
