@@ -11,6 +11,7 @@ or a lab's own.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -41,6 +42,7 @@ from rig.run.storage.store import JOURNAL, RunStore, RunStoreError
 if TYPE_CHECKING:
     from rig.run.backends.base import Instruments, StartPose
     from rig.run.measuring.measure import CaptureSettings
+    from rig.run.measuring.mode_choice import ModeChoice
     from rig.run.measuring.runner import ReferenceSettings, RunOptions, RunSummary
     from rig.run.measuring.tiles import ImageSettings
     from rig.run.planning.plan import Plan
@@ -247,16 +249,43 @@ def _run(
         return runner.run()
 
 
-def start_run(rig: RigConfig, sweep: SweepConfig, out: str | Path, *, progress: bool = True) -> RunSummary:
-    """Plan, create the run directory ``out`` and measure; raises RunStopped if it stops early."""
+def resolve_mode(rig: RigConfig, sweep: SweepConfig, plan: Plan) -> tuple[SweepConfig, ModeChoice | None]:
+    """The sweep with ``[capture] mode = "auto"`` decided (``rig.run.measuring.mode_choice``) and the choice;
+    any other sweep unchanged, with None."""
+    from rig.run.measuring.mode_choice import choose_image
+
+    cap = sweep.file.capture
+    if cap.mode != "auto":
+        return sweep, None
+    choice = choose_image(rig, plan, cap.tile_px, cap.motion)
+    # The decided table is what the manifest keeps: a resume measures the same way without deciding again.
+    keys = {"mode": choice.mode, "tile_px": cap.tile_px if choice.mode == "image" else None}
+    decided = sweep.file.model_copy(update={"capture": cap.model_copy(update=keys)})
+    return dataclasses.replace(sweep, file=decided), choice
+
+
+def start_run(
+    rig: RigConfig, sweep: SweepConfig, out: str | Path, *, progress: bool = True,
+    log: Callable[[str], None] | None = None,
+) -> RunSummary:  # fmt: skip
+    """Plan, create the run directory ``out`` and measure; raises RunStopped if it stops early.
+
+    ``log`` receives what the run decided before it starts (``mode = "auto"``'s choice).
+    """
     # Every input is read before the directory exists: a mistake found after would leave a run that is not
     # one, which a retry calls "already holds a run" and a resume fails on again.
     check_rig(rig)
-    capture = capture_settings(rig, sweep)
     plan = make_plan(rig, sweep, progress=progress)
     if not plan.points:
         raise ConfigError(f"{sweep.path}: no reachable point on this rig ({len(plan.skipped)} unreachable)")
-    with RunStore.create(out, manifest(rig, sweep, plan, options_for(rig, sweep, progress))) as store:
+    sweep, choice = resolve_mode(rig, sweep, plan)
+    capture = capture_settings(rig, sweep)
+    doc = manifest(rig, sweep, plan, options_for(rig, sweep, progress))
+    if choice is not None:
+        doc["capture_mode"] = {"asked": "auto", **choice.as_dict()}
+        if log is not None:
+            log(choice.describe())
+    with RunStore.create(out, doc) as store:
         return _run(store, rig, sweep, plan, progress, capture)
 
 

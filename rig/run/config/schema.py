@@ -369,9 +369,11 @@ class Capture(Strict):
     save_images: bool = False
     include_cosine: bool = False
     #: "point": each point one reading of the camera's ROI; "image": every tile_px x tile_px tile of the
-    #: sample's whole footprint a sample of its own (rig.run.measuring.image_capture).
-    mode: Literal["point", "image"] = "point"
-    #: Image mode's tile side in pixels (None: rig.run.measuring.tiles.DEFAULT_TILE_PX).
+    #: sample's whole footprint a sample of its own (rig.run.measuring.image_capture); "auto": image where the
+    #: camera resolves the sample into enough tiles, else point (rig.run.measuring.mode_choice), decided when
+    #: the run starts and written in its manifest.
+    mode: Literal["point", "image", "auto"] = "point"
+    #: Image mode's tile side in pixels (None: rig.run.measuring.tiles.DEFAULT_TILE_PX); also what "auto" counts in.
     tile_px: Annotated[int, Field(ge=1, le=512)] | None = None
     #: "stop": stop and go, every point measured at rest; "continuous": runs of points that differ in one joint are
     #: scanned at constant speed while the camera takes one frame per point (rig.run.measuring.scan); in image mode
@@ -394,7 +396,7 @@ class Capture(Strict):
                 raise ValueError(f"{key} = {getattr(self, key)!r} has no meaning with a fixed exposures_s "
                                  "(nothing is planned): leave out exposures_s to plan exposures ahead, or leave "
                                  f"out {key}")  # fmt: skip
-        if self.tile_px is not None and self.mode != "image":
+        if self.tile_px is not None and self.mode == "point":
             raise ValueError(f"tile_px = {self.tile_px} has no meaning in point mode (each point reads the camera's "
                              'ROI): set mode = "image" to read the sample in tiles, or leave tile_px out')  # fmt: skip
         if self.scan_speed_deg_s is not None and self.motion != "continuous":
