@@ -98,15 +98,22 @@ def record_section(args: argparse.Namespace, machine: str, table: str, notes: li
         "simulated rig does not settle (`settle_s = 0`); the settling rows add "
         "`settle_s` after every stop, a real rig's cost, which the scan avoids at every scanned point. A "
         "scanned frame costs blur (speed x exposure over the frame, in its angular variance) and is exposed once, "
-        "planned from the previous frame's level at a quarter of saturation. Exposures here are milliseconds to a "
+        "planned from the previous frame's level at a quarter of saturation (stop-and-go brackets up to five frames). "
+        "Exposures here are milliseconds to a "
         "few tens of ms, so the blur is a fraction of a degree even at 30 deg/s: ScanTooFast (blur over half the "
-        "step) needs steps of a degree or two, or the long exposures of a dim sample or a high SNR.\n\n"
+        "step) needs steps of a degree or two, or the long exposures of a dim sample or a high SNR. Where every "
+        "point is kept at equal rig time (the fast rows), compare the scanned rows' error with the same sweep at rest "
+        "alongside their shape error and honesty: the matte's shape error is nil, so any gap in its error is the "
+        "scale, i.e. the draw of noise, not the blur.\n\n"
         "In point mode every capture is one sample, so a scan changes samples per rig-hour only by the rig time "
         f"a point takes: the {THROUGHPUT_GOAL:g}x goal is not in reach of scans alone (image mode's many tiles "
         "per capture are; continuous + image rows appear here once the capture table takes the pair). Every "
         f"figure is one noise realisation: the readings' relative error is about 1 / SNR = {1 / SNR:.0%}, so a "
         "fit of some 30 of them has a scale uncertain by a few tenths of a percent, and error differences of "
         "that size between rows (the matte's, whose shape any fit gets, above all) are one draw's luck; "
-        "`--seed` draws another.",
+        "`--seed` draws another. Scanned rows are not bit-reproducible either: two runs of this bench with the "
+        "same seed gave some scanned rows rig times a few tenths of a second apart and errors tens of percent "
+        "apart, where the stop-and-go rows agreed to the digit (the cause is not pinned down here: a scan's timing "
+        "on the simulated bus varies between runs).",
         "Notes:\n\n" + "\n".join(f"- {n}" for n in notes),
     )  # fmt: skip
