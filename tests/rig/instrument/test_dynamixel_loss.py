@@ -128,3 +128,14 @@ def test_a_reply_delivered_in_two_pieces_is_late_not_garbled(
     assert set(link.read_positions()) == set(NAMES)
     assert link.bus.comm_retries_used >= 1 and link.bus.window_scale > 1.0
     assert link.bus.replies_lost == 0
+
+
+def test_an_absent_servo_is_not_a_lossy_bus(fast_link: tuple[VirtualDynamixelBus, DynamixelLink]) -> None:
+    _bus, link = fast_link
+    # Pinging ids nobody has (commissioning: `gonio servo ping 1 2 3 4 5` on a chain of four) must not teach the
+    # bus that it loses replies: counted as losses, each absent id would buy the next ping more retries.
+    for absent in (7, 9):
+        with pytest.raises(CommunicationError):
+            link.bus.ping(absent)
+        assert link.bus.replies_lost == 0 and link.bus.loss_rate == 0.0
+    assert set(link.read_positions()) == set(NAMES)
