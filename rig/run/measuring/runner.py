@@ -288,6 +288,7 @@ class Runner:
                 if scan is not None:  # continuous motion: the points a scan from here reaches, measured moving
                     level, more = scan.follow(pos, level, done, slots, plan_level)
                     swept.update(self.plan.points[p].index for p in more)
+                    self._measured += len(more)  # each a point record, as a stop's is
                     scanned += more
                 for _ in scanned:
                     self.eta.point_done()

@@ -98,6 +98,7 @@ def _z(rows: list[dict[str, str]], rig: Any) -> np.ndarray:
 def test_a_lambertian_scan_records_mid_exposure_directions_and_honest_readings(tmp_path: Path, link: str) -> None:
     points, (rig, outcome), renders = _run(tmp_path, LAMBERT, on=link, motion="continuous", scan_speed_deg_s=5.0)
     assert len(points) == MEASURED and _check_mid_exposure(points, renders, link) == SCANNED
+    assert outcome.measured == len(points)  # what `gonio run` prints counts the scanned points too
     # Frame follows frame at the scan's pace, the last of a run too (where the arm rests on the device's whole
     # count or step nearest the run's end, which may fall short of it): never a wait for a move's timeout.
     frames = {p["index"]: (p["scan"]["exposure_start_s"], p["scan"]["exposure_end_s"]) for p in points if "scan" in p}
