@@ -12,7 +12,7 @@ import pytest
 from model.fit.angular import angular_variance
 from model.fit.samples import Samples
 from rig.run.config.files import GRBL_STEPS_PER_DEGREE, ConfigError, material_from, parse
-from rig.run.config.schema import DEFAULT_SCAN_SPEED_DEG_S, SweepFile
+from rig.run.config.schema import SweepFile
 from rig.run.measuring.scan import ScanTooFast, Stamp, interpolate
 from rig.run.session import capture_settings, make_plan, manifest, options_for
 from rig.run.storage.store import RunStore
@@ -37,7 +37,7 @@ def test_motion_defaults_to_stop_and_its_keys_are_checked() -> None:
     rig = sim_rig(LAMBERT)
     assert capture_settings(rig, in_plane_sweep([20.0], [30.0])).scan_speed_deg_s is None
     on = capture_settings(rig, in_plane_sweep([20.0], [30.0], motion="continuous"))
-    assert on.scan_speed_deg_s == DEFAULT_SCAN_SPEED_DEG_S
+    assert on.motion == "continuous" and on.scan_speed_deg_s is None  # chosen per scan run
     with pytest.raises(ConfigError, match=r'scan_speed_deg_s = 3 has no meaning with motion = "stop"'):
         _sweep(scan_speed_deg_s=3.0)
     with pytest.raises(ConfigError, match=r"s\.toml.*scan_speed_deg_s"):
