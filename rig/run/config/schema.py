@@ -380,7 +380,8 @@ class Capture(Strict):
     #: The scanning joint's constant speed (deg/s of joint) in continuous motion, kept as given (up to the axis's
     #: max_speed_deg_s); left out: chosen per scan run, the fastest that the axis's max_speed_deg_s allows, that keeps
     #: each frame's blur (speed x exposure) within half the run's smallest step with room for the exposure to
-    #: double, and that gives the camera time for each frame and its darks (rig.run.planning.scans).
+    #: double, and that gives the camera time for each frame and its darks; a run that stopping at each point would
+    #: measure sooner is then measured at rest (rig.run.planning.scans).
     scan_speed_deg_s: Annotated[float, Field(gt=0, le=30, allow_inf_nan=False)] | None = None
     #: A fitted model that predicts every point's level before it is measured, so its exposure is planned ahead:
     #: ``gonio analyze``'s fit.json or export/material.json (rig.run.measuring.exposure_sources). Exposures only.

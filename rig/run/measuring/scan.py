@@ -65,9 +65,12 @@ from rig.run.planning.scans import (
     BLUR_FRACTION,
     SpeedChoice,
     chosen_speed_deg_s,
+    frame_time_s,
     run_angles,
+    run_time_s,
     scan_run,
     smallest_step_deg,
+    stops_time_s,
 )
 
 #: Fraction of saturation a frame's ROI peak is planned at: the next point may be this much brighter (x4).
@@ -183,12 +186,28 @@ def scan_exposure(level: Level, capture: Any) -> float:
     return float(max(plan.exposures_s))
 
 
+def rest_reading_s(level: Level, capture: Any) -> float:
+    """Camera seconds a reading at rest planned from ``level`` takes (its frames, darks and overheads; 0 if none
+    can be planned)."""
+    if capture.exposures_s:  # fixed: each frame, and each distinct exposure's darks
+        kinds = set(capture.exposures_s)
+        frames = len(capture.exposures_s) + capture.dark_frames * len(kinds)
+        return float(sum(capture.exposures_s) + capture.dark_frames * sum(kinds) + frames * capture.timing.overhead_s)
+    try:
+        plan = plan_exposure(level.roi_level(), capture.noise, capture.target_snr, capture.timing,
+                             max_frames=capture.max_frames, dark_frames=capture.dark_frames)  # fmt: skip
+    except ExposureError:
+        return 0.0
+    return float(plan.total_time_s)
+
+
 class Scanner:
     """Scans the runs of a plan for one runner; see the module docstring."""
 
     def __init__(self, host: ScanHost, speed_deg_s: float | None) -> None:
         """``speed_deg_s``: the sweep's scan speed, kept as given; None: chosen per run (``_speed``)."""
         self.host, self.speed = host, None if speed_deg_s is None else float(speed_deg_s)
+        self._stops_through = -1  # the last plan position of a run left to stop and go
 
     def _stamp(self) -> Stamp:
         t0 = self.host.clock.now()
@@ -200,6 +219,8 @@ class Scanner:
         """Scan on from plan position ``start`` (just measured at rest, at ``level``); the last frame's level and
         the positions measured. ``plan_level``: what the first frame is planned from (None: ``level``)."""
         h = self.host
+        if start < self._stops_through:  # inside a run found faster stop and go
+            return level, []
         run = scan_run(h.plan.points, start, done, slots, h.guard_names)
         link = h.link
         if run is None or not isinstance(link, ScanLink):
@@ -214,8 +235,14 @@ class Scanner:
         if len(legs) != 1:  # the straight sweep is not safe: stop and go instead
             return level, []
         planned = plan_level or level
-        choice = self._speed(joint, step, scan_exposure(h.planned_level(points[rest[0]], planned) or planned,
-                                                        h.capture))  # fmt: skip
+        first = scan_exposure(h.planned_level(points[rest[0]], planned) or planned, h.capture)
+        choice = self._speed(joint, step, first)
+        if self.speed is None and self._stopping_is_faster(joint, angles, choice.speed_deg_s, first, planned):
+            self._stops_through = rest[-1]
+            h._event("scan_stopped", f"points {points[start].index} to {points[rest[-1]].index}: stopping at each "
+                     f"is faster than scanning within the blur bound ({choice.speed_deg_s:.3g} deg/s); measured at "
+                     "rest", joint=joint, speed_deg_s=choice.speed_deg_s, first_index=points[start].index)  # fmt: skip
+            return level, []
         speed = link.set_speed({joint: choice.speed_deg_s})[joint]
         h._event("scan_speed", f"points {points[start].index} to {points[rest[-1]].index}: {joint} swept at "
                  f"{speed:.4g} deg/s ({_WHY[choice.bound]})", joint=joint, speed_deg_s=speed, bound=choice.bound,
@@ -237,12 +264,7 @@ class Scanner:
                     self._too_fast(blur, step, exposure, speed)
                 aim = float(points[pos].joints.as_dict()[joint])
                 if pos == rest[-1]:
-                    # The arm slows to rest over speed^2 / (2 accel) before the end: the last frame ends where it
-                    # begins to (up to half a step short of its point), so the read-backs bracket constant speed
-                    # and mid-exposure is where they say; a frame across the arrival would be placed off by a share
-                    # of its blur. The record holds the angles the frame saw.
-                    slowing = blur / 2 + speed**2 / (2 * self._limit(joint, "max_accel_deg_s2"))
-                    short = min(slowing, step / 2) + END_SLACK_DEG
+                    short = self._last_frame_short(joint, blur, exposure, speed, step)
                     if direction * (end - aim) < short:
                         aim = end - direction * short
                 self._reach(joint, aim - direction * blur / 2, direction, speed)
@@ -268,8 +290,31 @@ class Scanner:
                                   dark_frames=self.host.capture.dark_frames,
                                   overhead_s=float(timing.overhead_s))  # fmt: skip
 
+    def _stopping_is_faster(self, joint: str, angles: list[float], speed: float, exposure: float,
+                            level: Level) -> bool:  # fmt: skip
+        """Whether stopping at each of a run's points (moves, settling, a reading planned from ``level``) takes less
+        time than scanning them at ``speed`` (deg/s) with frames of ``exposure`` (s)."""
+        cap, h = self.host.capture, self.host
+        top, accel = self._limit(joint, "max_speed_deg_s"), self._limit(joint, "max_accel_deg_s2")
+        scan = run_time_s(angles, speed, accel, frame_time_s(exposure, cap.dark_frames, cap.timing.overhead_s))
+        return stops_time_s(angles, top, accel, h.options.settle_s + rest_reading_s(level, cap)) < scan
+
+    def _last_frame_short(self, joint: str, blur: float, exposure: float, speed: float, step: float) -> float:
+        """How far short (deg) of where the arm comes to rest a run's last frame is aimed.
+
+        The arm slows to rest over speed^2 / (2 accel): a frame across the arrival is placed off by up to a quarter
+        of its blur, one across the slowing by accel x exposure^2 / 8, since the read-backs around it are joined
+        by a straight line. Where that is more than a count of the read-back, the frame ends where the arm begins
+        to slow (up to half a step short of its point: the record holds the angles the frame saw).
+        """
+        accel, count = self._limit(joint, "max_accel_deg_s2"), 1.0 / self._limit(joint, "units_per_joint_degree")
+        if max(blur / 4, accel * exposure**2 / 8) <= count:
+            return END_SLACK_DEG
+        return min(blur / 2 + speed**2 / (2 * accel), step / 2) + END_SLACK_DEG
+
     def _limit(self, joint: str, key: str) -> float:
-        """The joint's axis limit ``key`` (deg/s or deg/s^2): the rig file's axis, else the link's (inf: unknown)."""
+        """The joint's axis ``key`` (a limit in deg/s or deg/s^2, or units per degree): the rig file's axis, else the
+        link's (inf: unknown)."""
         axis = getattr(self.host, "axes_by_name", {}).get(joint) or getattr(self.host.link, "axes", {}).get(joint)
         return float(getattr(axis, key, math.inf))
 

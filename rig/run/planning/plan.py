@@ -21,7 +21,7 @@ calibrated joints in alignment.py; ``Plan``, ``move_time_s`` and the rest are im
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -127,6 +127,8 @@ def plan_sweep(
     if order:  # the same walk (legs included) in the sweep's own order
         kept_g, via_g = safe_sequence(moves.paths, moves.start, xg_all)
         unordered = float(_walk_times(moves, xg_all[kept_g], _kept_via(kept_g, via_g))[1].sum())
+    if scan is not None:
+        scan = replace(scan, stop_point_s=settle_s + exposure_s_per_point + overhead_s_per_point)
     runs = _scan_runs(moves, by_name, points, x, set(refs) if r_row is not None else set(), scan)
     swept = [p for r in runs for p in r.swept]
     n = len(points) - len(swept)  # measured at rest

@@ -14,6 +14,11 @@ The chosen speed is the fastest of three bounds, each in deg/s of the scanning j
 - the camera's pace: a frame and its darks, each with the camera's overhead, must be done before the arm reaches
   the next point, or the frames fall behind the points they were meant for.
 
+Within these bounds a scan of long exposures can be slower than stopping: each step then takes about
+``SPEED_HEADROOM / BLUR_FRACTION`` exposures of travel, a stop one reading and a short move. A run whose scan at the
+chosen speed would take longer than stopping at each of its points (``run_time_s`` against ``stops_time_s``) is
+measured stop and go instead; a speed the sweep gives is always scanned at.
+
 The blur and pace bounds use the exposure planned for the run's first frame, divided by ``SPEED_HEADROOM``: the
 speed is set once per run (a servo's Profile Velocity, a GRBL feed), while each later frame is planned from the
 frame before and may need a longer exposure. A frame's exposure for a fixed SNR grows as its level falls, so the
@@ -102,6 +107,20 @@ def chosen_speed_deg_s(step_deg: float, exposure_s: float, top_deg_s: float, *, 
     return SpeedChoice(float(bounds[bound]), bound)
 
 
+def run_time_s(angles: Sequence[float], speed_deg_s: float, accel_deg_s2: float, frame_s: float) -> float:
+    """Seconds a scan run over ``angles`` (deg) takes from its first point, at rest, to rest at its last: the joint's
+    trapezoid at ``speed_deg_s``, or its frames' camera time (``frame_s`` each) if longer."""
+    travel = float(trapezoid_time_s(abs(angles[-1] - angles[0]), speed_deg_s, accel_deg_s2))
+    return max(travel, (len(angles) - 1) * frame_s)
+
+
+def stops_time_s(angles: Sequence[float], top_deg_s: float, accel_deg_s2: float, point_s: float) -> float:
+    """Seconds stopping at each point of a run after its first takes: each step's move at the axis's limits, and
+    ``point_s`` at each point (settling and the reading at rest)."""
+    steps = np.abs(np.diff(np.asarray(angles, dtype=np.float64)))
+    return float(np.sum(trapezoid_time_s(steps, top_deg_s, accel_deg_s2))) + len(steps) * point_s
+
+
 @dataclass(frozen=True)
 class ScanTiming:
     """What a plan's estimate of continuous scans needs: the speed the sweep gives (None: chosen per run), and each
@@ -111,6 +130,9 @@ class ScanTiming:
     exposure_s: float
     dark_frames: int = 0
     overhead_s: float = 0.0
+    #: Seconds a point measured at rest costs beyond its move (settling, the reading): with the speed chosen, a run
+    #: that stopping at each point would measure sooner is left to stop and go, as the runner leaves it.
+    stop_point_s: float = 0.0
 
     def speed(self, step_deg: float, top_deg_s: float) -> float:
         """A run's speed (deg/s): the given one up to the axis's top speed (as the links cap it), else chosen."""
@@ -150,8 +172,12 @@ def scan_runs(points: Sequence[PlannedPoint], slots: set[int], driven: frozenset
         joint, rest = run
         angles = run_angles(points, pos, rest, joint)
         speed = timing.speed(smallest_step_deg(angles), tops[joint])
-        travel = float(trapezoid_time_s(abs(angles[-1] - angles[0]), speed, accels[joint]))
-        frames = len(rest) * frame_time_s(timing.exposure_s, timing.dark_frames, timing.overhead_s)
-        out.append(ScanRunTime(pos, tuple(rest), joint, speed, float(np.maximum(travel, frames))))
+        took = run_time_s(angles, speed, accels[joint], frame_time_s(timing.exposure_s, timing.dark_frames,
+                                                                     timing.overhead_s))  # fmt: skip
+        stopping = stops_time_s(angles, tops[joint], accels[joint], timing.stop_point_s)
+        if timing.speed_deg_s is None and stopping < took:
+            pos = rest[-1]  # measured at rest, as the runner measures such a run
+            continue
+        out.append(ScanRunTime(pos, tuple(rest), joint, speed, took))
         pos = rest[-1] + 1
     return tuple(out)

@@ -95,3 +95,28 @@ def test_the_plan_times_scans_at_the_speed_the_runner_would_choose() -> None:
     # Points swept no longer stop: less settling, fewer exposures and a shorter run than stop and go or 3 deg/s.
     assert e.exposure_s < stop.exposure_s and e.total_s < stop.total_s < slow.total_s
     assert "measured moving" in auto.summary()
+
+
+def test_a_run_that_stopping_measures_sooner_is_measured_at_rest(tmp_path: Path) -> None:
+    # A very dim lamp: frames so long that within the blur bound a scan takes longer than stopping at each point.
+    dim: dict[str, Any] = {"target_snr": 50.0}
+    points, (_, outcome), _ = _run(tmp_path / "auto", LAMBERT, 1e-4, motion="continuous", **dim)
+    stopped = _events(tmp_path / "auto" / "run", "scan_stopped")
+    assert stopped and not _events(tmp_path / "auto" / "run", "scan_speed")
+    assert len(points) == outcome.measured == MEASURED and not any("scan" in p for p in points)
+    _, (_, stop), _ = _run(tmp_path / "stop", LAMBERT, 1e-4, **dim)
+    assert outcome.rig_time_s <= stop.rig_time_s * (1 + 1e-9)  # no slower than the stop and go it fell back to
+    # A given speed is scanned at, however slow.
+    given, _, _ = _run(tmp_path / "given", LAMBERT, 1e-4, motion="continuous", scan_speed_deg_s=1.0, **dim)
+    assert any("scan" in p for p in given)
+
+
+def test_the_plan_leaves_a_run_to_stop_and_go_as_the_runner_would() -> None:
+    rig = sim_rig(LAMBERT, reference={"every": 0})
+    # Frames of a second: the blur bound's scan of a 10 deg step takes longer than a move and one frame at rest.
+    slow = {"first_exposure_s": 1.0, "max_frames": 1}
+    stop = make_plan(rig, in_plane_sweep([20.0], THETA_O, **slow)).estimate
+    auto = make_plan(rig, in_plane_sweep([20.0], THETA_O, motion="continuous", **slow)).estimate
+    assert (auto.scanned, auto.total_s) == (0, pytest.approx(stop.total_s))
+    given = make_plan(rig, in_plane_sweep([20.0], THETA_O, motion="continuous", scan_speed_deg_s=2.0, **slow))
+    assert given.estimate.scanned == SCANNED
