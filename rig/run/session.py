@@ -32,7 +32,7 @@ from rig.run.config.files import (
     saved_rig,
     sweep_config,
 )
-from rig.run.config.schema import DEFAULT_SCAN_SPEED_DEG_S, SweepFile, run_metadata
+from rig.run.config.schema import SweepFile, run_metadata
 from rig.run.storage.journal import check_records
 from rig.run.storage.store import JOURNAL, RunStore, RunStoreError
 
@@ -46,6 +46,7 @@ if TYPE_CHECKING:
     from rig.run.measuring.runner import ReferenceSettings, RunOptions, RunSummary
     from rig.run.measuring.tiles import ImageSettings
     from rig.run.planning.plan import Plan
+    from rig.run.planning.scans import ScanTiming
 
 
 class RunFinished(RunStoreError):
@@ -72,7 +73,8 @@ def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
         roi=cam.roi if cam.backend != "simulated" else None,
         flat_field=camera_flat_field(rig),
         image=_image_settings(rig, sweep),
-        scan_speed_deg_s=(cap.scan_speed_deg_s or DEFAULT_SCAN_SPEED_DEG_S) if cap.motion == "continuous" else None,
+        motion=cap.motion,
+        scan_speed_deg_s=cap.scan_speed_deg_s,  # None in continuous motion: chosen per scan run
         exposure_sources=load_sources(sweep.path, cap.exposure_from, cap.exposure_model),
     )
 
@@ -166,8 +168,20 @@ def make_plan(rig: RigConfig, sweep: SweepConfig, *, progress: bool = False) -> 
             reference_joints=ref.joints if ref else None, order=sweep.file.sweep.order,
             isotropic=sweep.file.sweep.isotropic,
             coordinated=backend(rig.file.link.kind).for_file(rig.file).coordinated, alignment=rig.alignment,
-            on_stage=stage,
+            on_stage=stage, scan=_scan_timing(rig, sweep),
         )  # fmt: skip
+
+
+def _scan_timing(rig: RigConfig, sweep: SweepConfig) -> ScanTiming | None:
+    """How the plan times continuous scans (None: stop and go): the given speed, else the runner's rule with a
+    frame exposed as the estimate's stops are (a fixed exposure's longest, else first_exposure_s)."""
+    from rig.run.planning.scans import ScanTiming
+
+    cap = sweep.file.capture
+    if cap.motion != "continuous":
+        return None
+    exposure = max(cap.exposures_s) if cap.exposures_s else cap.first_exposure_s
+    return ScanTiming(cap.scan_speed_deg_s, exposure, cap.dark_frames, rig.file.camera.overhead_s)
 
 
 def _approach_s(rig: RigConfig) -> float:

@@ -379,8 +379,11 @@ class Capture(Strict):
     #: scanned at constant speed while the camera takes one frame per point (rig.run.measuring.scan); in image mode
     #: each frame's tiles are samples, each with the blur along its own directions.
     motion: Literal["stop", "continuous"] = "stop"
-    #: The scanning joint's constant speed (deg/s of joint) in continuous motion; None: DEFAULT_SCAN_SPEED_DEG_S.
-    #: Bounded well below any axis's top speed: a frame blurs over speed x exposure.
+    #: The scanning joint's constant speed (deg/s of joint) in continuous motion, kept as given (up to the axis's
+    #: max_speed_deg_s); left out: chosen per scan run, the fastest that the axis's max_speed_deg_s allows, that keeps
+    #: each frame's blur (speed x exposure) within half the run's smallest step with room for the exposure to
+    #: double, and that gives the camera time for each frame and its darks; a run that stopping at each point would
+    #: measure sooner is then measured at rest (rig.run.planning.scans).
     scan_speed_deg_s: Annotated[float, Field(gt=0, le=30, allow_inf_nan=False)] | None = None
     #: A fitted model that predicts every point's level before it is measured, so its exposure is planned ahead:
     #: ``gonio analyze``'s fit.json or export/material.json (rig.run.measuring.exposure_sources). Exposures only.
@@ -404,11 +407,6 @@ class Capture(Strict):
                              f'"{self.motion}" (every point is measured at rest): set motion = "continuous" or '
                              "leave scan_speed_deg_s out")  # fmt: skip
         return self
-
-
-#: The scanning joint's speed (deg/s) when a continuous sweep leaves scan_speed_deg_s out: slow enough that a
-#: 10 ms frame blurs by 0.02 deg, far inside a sweep's usual 1-5 deg step.
-DEFAULT_SCAN_SPEED_DEG_S = 2.0
 
 
 class SweepFile(Strict):

@@ -178,6 +178,8 @@ class Runner:
         self.alignment = calibration.alignment if calibration is not None else Alignment()
         #: Encoder resolution per joint (deg): a count's uniform error, variance count^2 / 12.
         self._resolution = {a.name: 1.0 / a.units_per_joint_degree for a in axes}
+        #: The axes by joint: a scan's chosen speed stays within their top speed, its last frame ends before they slow.
+        self.axes_by_name = {a.name: a for a in axes}
         allowed = [p.joints for p in plan.points] + [v for p in plan.points for v in p.via]
         if reference is not None:
             allowed.append(reference.joints)
@@ -274,8 +276,7 @@ class Runner:
                 self._return_to_last_pose(records)
             self._continue_time(records)
             self.eta.start(len(self.plan.points) - len(done))
-            speed = self.capture.scan_speed_deg_s
-            scan = Scanner(self, speed) if speed is not None else None
+            scan = Scanner(self, self.capture.scan_speed_deg_s) if self.capture.motion == "continuous" else None
             swept: set[int] = set()  # indices a scan measured in this call
             for pos, point in enumerate(self.plan.points):
                 if pos in slots and pos not in ref_done and point.index not in done:
@@ -288,6 +289,7 @@ class Runner:
                 if scan is not None:  # continuous motion: the points a scan from here reaches, measured moving
                     level, more = scan.follow(pos, level, done, slots, plan_level)
                     swept.update(self.plan.points[p].index for p in more)
+                    self._measured += len(more)  # each a point record, as a stop's is
                     scanned += more
                 for _ in scanned:
                     self.eta.point_done()
@@ -449,7 +451,7 @@ class Runner:
             return reading, empty, reading.level
         with whole_frames(self.camera):
             reading = self._read(level, shot.capture, shot.camera)
-        scanning = self.capture.scan_speed_deg_s is not None  # only a scan plans from it
+        scanning = self.capture.motion == "continuous"  # only a scan plans from it
         return reading, shot.record(reading), shot.brightest_level(reading) if scanning else reading.level
 
     def point_head(self, point: PlannedPoint, pos: int, d: Directions, joints: Joints) -> dict[str, Any]:

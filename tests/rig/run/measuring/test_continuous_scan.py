@@ -12,7 +12,7 @@ import pytest
 from model.fit.angular import angular_variance
 from model.fit.samples import Samples
 from rig.run.config.files import GRBL_STEPS_PER_DEGREE, ConfigError, material_from, parse
-from rig.run.config.schema import DEFAULT_SCAN_SPEED_DEG_S, SweepFile
+from rig.run.config.schema import SweepFile
 from rig.run.measuring.scan import ScanTooFast, Stamp, interpolate
 from rig.run.session import capture_settings, make_plan, manifest, options_for
 from rig.run.storage.store import RunStore
@@ -37,7 +37,7 @@ def test_motion_defaults_to_stop_and_its_keys_are_checked() -> None:
     rig = sim_rig(LAMBERT)
     assert capture_settings(rig, in_plane_sweep([20.0], [30.0])).scan_speed_deg_s is None
     on = capture_settings(rig, in_plane_sweep([20.0], [30.0], motion="continuous"))
-    assert on.scan_speed_deg_s == DEFAULT_SCAN_SPEED_DEG_S
+    assert on.motion == "continuous" and on.scan_speed_deg_s is None  # chosen per scan run
     with pytest.raises(ConfigError, match=r'scan_speed_deg_s = 3 has no meaning with motion = "stop"'):
         _sweep(scan_speed_deg_s=3.0)
     with pytest.raises(ConfigError, match=r"s\.toml.*scan_speed_deg_s"):
@@ -98,6 +98,7 @@ def _z(rows: list[dict[str, str]], rig: Any) -> np.ndarray:
 def test_a_lambertian_scan_records_mid_exposure_directions_and_honest_readings(tmp_path: Path, link: str) -> None:
     points, (rig, outcome), renders = _run(tmp_path, LAMBERT, on=link, motion="continuous", scan_speed_deg_s=5.0)
     assert len(points) == MEASURED and _check_mid_exposure(points, renders, link) == SCANNED
+    assert outcome.measured == len(points)  # what `gonio run` prints counts the scanned points too
     # Frame follows frame at the scan's pace, the last of a run too (where the arm rests on the device's whole
     # count or step nearest the run's end, which may fall short of it): never a wait for a move's timeout.
     frames = {p["index"]: (p["scan"]["exposure_start_s"], p["scan"]["exposure_end_s"]) for p in points if "scan" in p}

@@ -13,7 +13,7 @@ from model.fit.samples import Samples
 from rig.instrument.kinematics import Joints, world_pose
 from rig.instrument.links.dynamixel_table import X_SERIES
 from rig.run.config.files import material_from, parse
-from rig.run.config.schema import DEFAULT_SCAN_SPEED_DEG_S, SweepFile
+from rig.run.config.schema import SweepFile
 from rig.run.measuring.tiles import ImageSettings, TileGeometry, tile_geometry
 from rig.run.session import capture_settings, make_plan, manifest, options_for
 from rig.run.storage.store import RunStore
@@ -38,7 +38,7 @@ def test_continuous_motion_with_image_mode_is_accepted() -> None:
     assert (capture.mode, capture.motion) == ("image", "continuous")
     settings = capture_settings(sim_rig(LAMBERT, camera={"resolution": [64, 64]}),
                                 in_plane_sweep([20.0], [30.0], mode="image", motion="continuous"))  # fmt: skip
-    assert settings.image is not None and settings.scan_speed_deg_s == DEFAULT_SCAN_SPEED_DEG_S
+    assert settings.image is not None and settings.motion == "continuous"
 
 
 def _run(run: Path, material: dict[str, Any], theta_o: list[float], resolution: int,
