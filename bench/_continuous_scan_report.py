@@ -26,6 +26,10 @@ class Row(Protocol):
         ...
 
 
+#: The rows measured at rest: a scanned row is compared with the one of its sweep and reading mode.
+AT_REST = ("stop-and-go", "image")
+
+
 def _x(a: float, b: float) -> str:
     return f"{a / b:.2f}x" if math.isfinite(a) and math.isfinite(b) and b else "-"
 
@@ -38,7 +42,8 @@ def verdicts(label: str, outcomes: list[Row]) -> list[str]:
         if o.mode == "stop-and-go":
             continue
         # The same sweep at rest: the stop-and-go row whose label this row's extends the most.
-        rests = [r for r in outcomes[1:] if r.mode == "stop-and-go" and o.sweep.startswith(r.sweep)]
+        rests = [r for r in outcomes[1:] if r.mode in AT_REST and o.sweep.startswith(r.sweep)
+                 and ("image" in r.mode) == ("image" in o.mode) and r is not o]  # fmt: skip
         rest = max(rests, key=lambda r: len(r.sweep), default=None)
         speed = o.per_hour / anchor.per_hour
         err = o.scores["error"] / anchor.scores["error"]
@@ -71,10 +76,12 @@ def record_section(args: argparse.Namespace, machine: str, table: str, notes: li
         "`scan_speed_deg_s` of the dial. A continuous run measures the first point of each scan run at rest, as "
         "the runner does, and scans the rest: 'scanned' counts journal records with a `scan` key. The anchor's "
         "grid itself barely scans (the notes say how many of its points sit in runs along one joint): its "
-        "neighbours differ in several joints. The scan sweep's joint angles are whole servo counts: a run ending "
-        "a fraction of a count short of where the servo can stop made the scan wait for it until the move timed "
-        "out (60 s of rig time each), a bug of `Scanner._reach` this bench sidesteps rather than measures; any "
-        "run that still waits out the timeout is left out with a note.\n\n"
+        "neighbours differ in several joints. The scan sweep's joint angles are whole servo counts (scans "
+        "now aim a run's last frame where the device comes to rest, `ScanLink.stops_at`; any run that still "
+        "waits out the move timeout is left out with a note). 'auto speed' leaves `scan_speed_deg_s` out: each "
+        "scan run then goes as fast as its axis, its frames' blur (half a step) and the camera's pace allow, and "
+        "is measured at rest where scanning would be slower (rig.run.planning.scans). The image rows read the "
+        "same sweep in image mode (at rest and scanned) on image_mode's camera.\n\n"
         "Rig time is the simulated clock's `run_time_s` (moves, settling, exposures, references). **Equal rig "
         "time**, fits, scores and 'honest' are bench/image_mode's (`bench._modes`): each run is cut in time "
         "order at the anchor's rig time, the points measured by then are fitted with the material's own model "

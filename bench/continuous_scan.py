@@ -57,13 +57,14 @@ from rig.run.measuring.scan import ScanTooFast, scan_run
 from rig.run.session import make_plan, start_run
 from rig.run.storage.store import RunStore
 
-#: Scan speeds (deg/s of the camera joint) of the dial; ``[capture] scan_speed_deg_s`` allows up to 30.
-SPEEDS = (2.0, 5.0, 10.0, 20.0, 30.0)
-QUICK_SPEEDS = (5.0, 20.0)
+#: Scan speeds (deg/s of the camera joint) of the dial; ``[capture] scan_speed_deg_s`` allows up to 30. None: left
+#: out, the speed each scan run chooses (rig.run.planning.scans: the axis, the frames' blur, the camera's pace).
+SPEEDS: tuple[float | None, ...] = (None, 2.0, 5.0, 10.0, 20.0, 30.0)
+QUICK_SPEEDS: tuple[float | None, ...] = (None, 20.0)
 #: The scan sweep: camera step (deg), the dense variant's, and the light-arm angles and tilts each run holds.
 STEP_DEG = 20.0
 DENSE_STEP_DEG = 5.0
-DENSE_SPEEDS = (5.0, 20.0)
+DENSE_SPEEDS: tuple[float | None, ...] = (None, 5.0, 20.0)
 LIGHTS_DEG = (15.0, 40.0, 65.0)
 TILTS_DEG = (0.0, -35.0)
 #: One count of the simulated XM430 (deg): the scan sweep's joint angles are whole counts (see scan_design).
@@ -231,7 +232,10 @@ def bench_plan(material: Material, seed: int, quick: bool) -> tuple[list[Run], l
     why = refused(image)
     if why is None:
         image_rig = mode_rig(material, seed, QUICK_RESOLUTION if quick else RESOLUTION)
-        runs.append(Run("continuous + image", f"{label}, {IMAGE_TILE_PX} px tiles", sweep, image_rig, image))
+        tiled = f"{label}, {IMAGE_TILE_PX} px tiles"
+        runs.append(Run("image", tiled, sweep, image_rig, capture_table("stop", None, IMAGE_TILE_PX)))
+        runs += [Run("continuous + image", tiled, sweep, image_rig, capture_table("continuous", v, IMAGE_TILE_PX))
+                 for v in (None, IMAGE_SPEED)]  # fmt: skip
     else:
         notes.append(f"continuous + image mode left out: the capture table is refused ({why})")
     if not quick:
@@ -268,7 +272,8 @@ def measure_material(material: Material, seed: int, n_points: int, quick: bool, 
         cpu = time.process_time()
         run = work / f"run{k}"
         speed = r.capture.get("scan_speed_deg_s")
-        dial = "at rest" if speed is None else f"{speed:g} deg/s"
+        moving = r.capture.get("motion") == "continuous"
+        dial = ("auto speed" if speed is None else f"{speed:g} deg/s") if moving else "at rest"
         what = f"{r.mode}, {r.sweep}, {dial}"
         try:
             rows, rig_s, blur = run_sweep(r.rig, r.points, r.capture, run)
