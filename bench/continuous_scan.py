@@ -72,6 +72,8 @@ COUNT_DEG = 360.0 / 4096
 #: The settling rig's [link] settle_s (s) and the speed it scans at.
 SETTLE_S = 0.5
 SETTLE_SPEED = 20.0
+#: Stands for the directory of the scan sweep's run at rest (the first run after the anchor) in a capture table.
+FIRST_PASS = "<the pass at rest>"
 #: Continuous + image mode: tile side (px) and speed; GRBL's speed.
 IMAGE_TILE_PX = 16
 IMAGE_SPEED = 10.0
@@ -220,6 +222,9 @@ def bench_plan(material: Material, seed: int, quick: bool) -> tuple[list[Run], l
     runs = [Run("stop-and-go", label, sweep, rig, rest)]
     runs += [Run("continuous", label, sweep, rig, capture_table("continuous", v, None))
              for v in (QUICK_SPEEDS if quick else SPEEDS)]  # fmt: skip
+    # Exposures planned ahead from the at-rest pass just measured (runs[0]): what a lab's first pass buys a scan.
+    ahead = {**capture_table("continuous", None, None), "exposure_from": FIRST_PASS}
+    runs.append(Run("continuous", f"{label}, exposure from the pass at rest", sweep, rig, ahead))
     notes: list[str] = []
     if not quick:
         runs.append(Run("stop-and-go", dense_label, dense, rig, rest))
@@ -275,8 +280,9 @@ def measure_material(material: Material, seed: int, n_points: int, quick: bool, 
         moving = r.capture.get("motion") == "continuous"
         dial = ("auto speed" if speed is None else f"{speed:g} deg/s") if moving else "at rest"
         what = f"{r.mode}, {r.sweep}, {dial}"
+        capture = {k: str(work / "run0") if v == FIRST_PASS else v for k, v in r.capture.items()}
         try:
-            rows, rig_s, blur = run_sweep(r.rig, r.points, r.capture, run)
+            rows, rig_s, blur = run_sweep(r.rig, r.points, capture, run)
             stalled = stalls(r.rig, run)
             if stalled:
                 raise RuntimeError(f"{stalled} point(s) waited out the {r.rig.file.link.move_timeout_s:g} s move "
