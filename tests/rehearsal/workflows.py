@@ -65,7 +65,7 @@ MISALIGNED = {"light_zero_deg": 0.5, "camera_zero_deg": -0.3, "tilt_zero_deg": 0
 
 
 def small_rig(link: str, tmp: Path) -> Path:
-    """The shipped hardware rig file of ``link`` with the small sensor's ROI, a reference every 3 points, quick polls."""
+    """The shipped hardware rig file of ``link``: the small sensor's ROI, a reference every 3 points, quick polls."""
     from tests.rehearsal.harness import set_keys
 
     path = tmp / f"shipped_{link}.toml"
@@ -162,7 +162,9 @@ def check_image_run(op: Operator, rig: Path, sweep: Path, served: Path, tmp: Pat
     # Each tile's BRDF per colour (its mosaic's whole 2x2 cells binned) against the served rig's material.
     truth, got, se = truth_and_measured(rows, load_rig(served))
     z = (got - truth) / se
-    assert float(np.mean(np.abs(z) < 3)) >= 0.95 and float(np.mean(np.abs(z) < 1)) >= 0.5, np.abs(z).max()
+    # Within their errors, and errors not so wide that every tile is (the tiles share their reference readings' error).
+    within = [float(np.mean(np.abs(z) < n)) for n in (1, 3)]
+    assert 0.5 <= within[0] <= 0.95 and within[1] >= 0.95, within
     stopped = op.run("run", str(sweep), "--rig", str(rig), "--out", str(cut), "--quiet",
                      interrupt_after="before point 3")  # fmt: skip
     assert stopped.status == 130, stopped.output
