@@ -15,9 +15,11 @@ uses for it. A hardware file's sensor is the smallest whose centre is its ROI's 
 at the sample): ``[2000, 1300, 2200, 1500]`` gives 4200 x 2800 pixels.
 
 What shoots: a request the folder camera leaves (:mod:`acquisition.cameras.shot_request`, when the rig file
-has no trigger), or ``capture SECONDS`` typed on the rehearsal's input. Only a window around the ROI is
-exposed while the sample or the tile is in view (a run reads nothing else); the rest of the frame holds the
-sensor's dark level under one fixed draw of read noise. With the board, the flat light or the lens cap in
+has no trigger), or ``capture SECONDS`` typed on the rehearsal's input. Only what a run reads is exposed
+while the sample or the tile is in view: a window around the ROI, and with the sample all of it the frame
+holds (image mode reads every tile on it); the rest of the frame holds the sensor's dark level under one
+fixed draw of read noise. A frame taken while an axis moves (a continuous scan) averages renders along
+the exposure, as the simulated rig's camera does. With the board, the flat light or the lens cap in
 place, the whole sensor is exposed (calibrations read whole frames).
 
 What an operator does at a real rig is typed on the rehearsal's input too (:data:`SCENES`): ``scene tile``
@@ -40,10 +42,12 @@ from acquisition.board import ChArUcoBoard
 from acquisition.cameras.shot_request import take_requests
 from acquisition.frame import Frame
 from model.errors import InputError
+from rig.instrument.alignment import aligned_pose
 from rig.run.config.files import RigConfig
 from simulator.camera.simulated import DNG_MIN_SIDE, SensorPatch, SimulatedCamera, window_around
 from simulator.from_config import rig_from, spec_from
 from simulator.render.spec import CameraSpec
+from simulator.render.view import sample_box
 from simulator.rig import SimRigSpec, SimulatedRig
 
 Box = tuple[int, int, int, int]
@@ -144,20 +148,35 @@ class Tether:
             self._patch, noise=spec.noise, optics=spec.optics, kind="raw", clock=sim.clock, seed=spec.seed,
             fixed_pattern_dn=spec.fixed_pattern_dn, state_key=sim.state_key,
             stray_counts_per_s=spec.stray_light_counts_s, response=spec.response,
-            camera_id="gonio rehearsal camera (RAW)", min_exposure_s=1e-6, max_exposure_s=3600.0,
+            camera_id="gonio rehearsal camera (RAW)", min_exposure_s=1e-6, max_exposure_s=3600.0, moving=sim.moving,
         )  # fmt: skip
         self._background: npt.NDArray[np.float32] | None = None
         self._client = 0
 
-    def _patch(self, full_frame: bool = False) -> SensorPatch:
+    def _patch(self, full_frame: bool = False, like: SensorPatch | None = None) -> SensorPatch:
+        """What the sensor sees now: the whole of it, or the window a run reads (``like``'s, for sub-exposures)."""
         sim = self.sim
         if sim.flat_source.state != "off":
             return sim.flat_source.patch()
-        if self.roi is None or self.scene == "board":
+        if self.roi is None or self.scene == "board" or (like is not None and like.origin_xy == (0, 0)
+                                                         and like.radiance.shape[:2] == self.sensor[::-1]):
             return SensorPatch(sim.radiance_now(full_frame=True), sensor=self.sensor)
-        window = window_around(self.roi, self.sensor, DNG_MIN_SIDE)
-        box = (window[0], window[1], window[2], window[3])
+        if like is not None:
+            (x0, y0), (h, w) = like.origin_xy, like.radiance.shape[:2]
+            box = (x0, y0, x0 + w, y0 + h)
+        else:
+            box = _union(window_around(self.roi, self.sensor, DNG_MIN_SIDE), self._sample_window())
         return SensorPatch(sim.radiance_now(crop=box), origin_xy=(box[0], box[1]), sensor=self.sensor)
+
+    def _sample_window(self) -> Box | None:
+        """The sensor box (even corners) of all of the sample in view, which image mode reads; None for the tile."""
+        if self.scene != "sample":
+            return None
+        spec = self.sim.spec
+        pose = aligned_pose(spec.geometry, self.sim.joints_now(), spec.misalignment)
+        x0, y0, x1, y1 = sample_box(spec.geometry, pose, spec.camera, spec.sample_shape)
+        w, h = self.sensor
+        return (x0 - x0 % 2, y0 - y0 % 2, min(x1 + x1 % 2, w), min(y1 + y1 % 2, h))
 
     def set_scene(self, scene: str, board: ChArUcoBoard | None = None, alpha: float = 0.01) -> None:
         """Put ``scene`` (one of :data:`SCENES`) in view, as an operator at the rig would."""
@@ -240,6 +259,13 @@ class Tether:
             except Exception as exc:  # the rehearsal serves on: the controller times out and says why
                 on_error(f"error: shot request not answered: {exc}")
             stop.wait(poll_s)
+
+
+def _union(a: tuple[int, ...], b: Box | None) -> Box:
+    """The smallest box (x0, y0, x1, y1) holding both (``a`` alone if ``b`` is None)."""
+    if b is None:
+        return (a[0], a[1], a[2], a[3])
+    return (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
 
 
 #: The controller's folder poll (s) in a rig file the rehearsal writes: frames arrive whole, so polls can be quick.

@@ -92,6 +92,7 @@ HOW: dict[str, tuple[str, str]] = {
     f"{GONIO} plan examples/sweep_grid.toml --rig examples/rig_dynamixel.toml": ("run", "dynamixel"),
     f"{GONIO} run examples/sweep_grid.toml --rig examples/rig_dynamixel.toml --out runs/first": ("run", "dynamixel"),
     f"{GONIO} resume runs/first": ("run", "dynamixel"),
+    f"{GONIO} run examples/sweep_image.toml --rig examples/rig_dynamixel.toml --out runs/image": ("run", "dynamixel"),
     f"{GONIO} analyze runs/first": ("run", "dynamixel"),
     f"{GONIO} sim rig --rig examples/rig_grbl.toml --frames rehearsal/frames --speed 20": ("serve", "grbl"),
     f"{GONIO} servo check --port /dev/ttyACM0": ("run", "grbl"),
@@ -262,7 +263,8 @@ class Lab:
         self.base, self.stack = base, stack
         self.work = base / "work"  # where the guide's commands run, as from a checkout
         (self.work / "examples").mkdir(parents=True)
-        shutil.copy(ROOT / "examples" / "sweep_grid.toml", self.work / "examples")
+        for sweep in ("sweep_grid.toml", "sweep_image.toml"):
+            shutil.copy(ROOT / "examples" / sweep, self.work / "examples")
         self.ports: dict[str, str] = {}
         self.rehearsals: dict[str, Rehearsal] = {}
 
@@ -383,6 +385,13 @@ def _check(key: str, done: Result, work: Path) -> None:
         assert "Sweep of 20 points: 20 to measure, 0 unreachable" in out, out
     elif " analyze " in key:
         assert (work / key.split()[-1] / "analysis" / "index.html").is_file(), out
+    elif " run examples/sweep_image.toml " in key:
+        # One row per tile, on the sensor the run learnt from the camera's first whole frame.
+        assert "measured 5 points (0 from before)" in out, out
+        rows = _rows(work / "runs" / "image" / "samples.csv")
+        points = [json.loads(line) for line in (work / "runs" / "image" / "journal.jsonl").read_text().splitlines()]
+        sensors = {tuple(r["sensor_px"]) for r in points if r["kind"] == "point"}
+        assert sensors == {(512, 384)} and len(rows) >= 5 * 20 and rows[0]["tile"], (sensors, len(rows))
     elif " run " in key or " resume " in key:
         out_dir = work / (key.split()[-1] if " resume " in key else key.split()[key.split().index("--out") + 1])
         counts = re.search(r"measured (\d+) points \((\d+) from before\)", out)
@@ -402,7 +411,7 @@ def _run(lab: Lab, key: str, argv: list[str], where: str) -> None:
         return
     words = argv[1:]
     op = lab.operator(where)
-    if words[0] == "run" and where == "dynamixel":
+    if words[0] == "run" and where == "dynamixel" and "runs/first" in words:
         # Section 8: Ctrl-C halfway through the first sweep, then the guide's `gonio resume runs/first` ends it.
         stopped = op.run(*words, interrupt_after="5/20")
         assert stopped.status == 130, stopped.output[-3000:]

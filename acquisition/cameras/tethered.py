@@ -5,7 +5,9 @@ Camera Control, Capture One, smartshooter, a vendor SDK demo): it sets the expos
 and writes RAW, DNG or TIFF files into a hot folder. ``TetheredFolderCamera`` watches that folder:
 ``capture()`` returns the next file that appears after the previous capture (files already there when
 the camera was made are ignored), once it is completely written, decoded through ``read_frame`` and
-checked against the requested exposure.
+checked against the requested exposure. The frame's ``extra["triggered_s"]`` is the camera clock's time (s)
+when the shot was fired (the trigger run, or the shot request left): its exposure begins then, long before
+the file has been written and found, which is when ``capture()`` returns.
 """
 
 from __future__ import annotations
@@ -119,6 +121,7 @@ class TetheredFolderCamera:
         self._identity: str | None = None
         self._closed = False
         self._shots = 0
+        self._fired_s = 0.0  # camera clock (s) when the last shot was fired
         self._seen: set[str] = {p.name for p in self._matching()}
 
     # -- Camera protocol -------------------------------------------------------------------------
@@ -152,6 +155,7 @@ class TetheredFolderCamera:
         if self._closed:
             raise CameraError(f"tethered camera at {self.folder} is closed")
         request: Path | None = None
+        self._fired_s = self.clock.now()
         if self.trigger is not None:
             if self._requested is None:
                 raise CameraError(f"tethered camera at {self.folder}: call set_exposure() before a triggered capture")
@@ -269,6 +273,7 @@ class TetheredFolderCamera:
             extra["requested_exposure_s"] = self._requested.exposure_s
         elif extra.get("exposure_source") == "caller":
             raise FrameError(f"{where}: the file has no exposure time and none was requested")
+        extra["triggered_s"] = self._fired_s
         camera_id = frame.camera_id
         if camera_id == "unknown":
             camera_id = f"tethered camera at {self.folder}"

@@ -237,6 +237,7 @@ def calibrate_geometry(
     for k, (cap, hdr, kind) in enumerate(zip(caps, hdrs, kinds, strict=True)):
         docs.append(_capture_doc(k, kind, cap, hdr, fit, k))
     doc = calibration_document(rig, fit, board, alpha, docs, inst.board.description)
+    doc["sensor_px"] = list(_size(hdrs[0]))  # the camera model's sensor: image mode's tiles must be on the same
     path = write_geometry_calibration(out / FILE_NAME, doc)
     for warning in fit.warnings:
         say(f"warning: {warning}")

@@ -7,8 +7,10 @@ Written by ``gonio calibrate geometry`` (``rig.alignment``), applied by a rig fi
 on a fixed-camera rig), each ``{"value": ..., "std_error": ...}`` (degrees, millimetres; the offset as
 [x, y, z] lists). Beside them: ``covariance`` and ``correlation`` of the fit's own parameters (``names``;
 the wedge as its x, y components), ``residuals`` (pixels, chi2), ``captures`` (the joints read back and what
-each frame showed), ``warnings``, and ``rig`` (the rig file's path and SHA-256 when it was calibrated, and
-``geometry``: the tables it was fitted for, ``rig.run.config.fitted_for``).
+each frame showed), ``sensor_px`` (the [width, height] in pixels of the whole frames it was fitted on: the
+camera model's sensor, which image mode's tiles are checked against), ``warnings``, and ``rig`` (the rig
+file's path and SHA-256 when it was calibrated, and ``geometry``: the tables it was fitted for,
+``rig.run.config.fitted_for``).
 """
 
 from __future__ import annotations
@@ -57,13 +59,16 @@ class GeometryCalibration:
     warnings: tuple[str, ...] = ()
     #: The rig file's tables it was fitted for (``rig.run.config.fitted_for``); None in a file older than the record.
     rig_geometry: dict[str, Any] | None = None
+    #: The (width, height) in pixels of the whole frames it was fitted on; None in a file older than the record.
+    sensor_px: tuple[int, int] | None = None
 
     def snapshot(self) -> dict[str, Any]:
         """JSON-ready form for a run's manifest, so a resumed run corrects exactly as it started."""
         return {"alignment": dataclasses.asdict(self.alignment), "names": list(self.names),
                 "covariance": self.covariance.tolist(), "path": str(self.path) if self.path else None,
                 "created_utc": self.created_utc, "rig_sha256": self.rig_sha256, "reduced_chi2": self.reduced_chi2,
-                "warnings": list(self.warnings)}  # fmt: skip
+                "warnings": list(self.warnings),
+                "sensor_px": list(self.sensor_px) if self.sensor_px else None}  # fmt: skip
 
     @classmethod
     def from_snapshot(cls, doc: dict[str, Any]) -> GeometryCalibration:
@@ -73,7 +78,8 @@ class GeometryCalibration:
         return cls(Alignment(**a), tuple(doc.get("names", ())), np.asarray(doc.get("covariance", []), dtype=float)
                    .reshape(len(doc.get("names", ())), len(doc.get("names", ()))),
                    Path(doc["path"]) if doc.get("path") else None, doc.get("created_utc"), doc.get("rig_sha256"),
-                   doc.get("reduced_chi2"), tuple(doc.get("warnings", ())))  # fmt: skip
+                   doc.get("reduced_chi2"), tuple(doc.get("warnings", ())),
+                   sensor_px=_sensor(doc.get("sensor_px")))  # fmt: skip
 
     def describe(self) -> str:
         """One line for ``gonio plan``: where the calibration is from, when, and its largest corrections."""
@@ -95,6 +101,16 @@ def _number(path: Path, key: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise CalibrationFileError(f"{path}: {key} = {value!r}: expected a finite number")
     return float(value)
+
+
+def _sensor(value: Any) -> tuple[int, int] | None:
+    """A (width, height) pair of positive whole pixels, None if absent; ValueError otherwise."""
+    if value is None:
+        return None
+    if (not isinstance(value, list | tuple) or len(value) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in value)):  # fmt: skip
+        raise ValueError(f"{value!r}: expected [width, height] in whole pixels")
+    return int(value[0]), int(value[1])
 
 
 def read_geometry_calibration(path: str | Path) -> GeometryCalibration:
@@ -134,12 +150,16 @@ def read_geometry_calibration(path: str | Path) -> GeometryCalibration:
     if matrix.shape != (len(names), len(names)) or not np.all(np.isfinite(matrix)):
         raise CalibrationFileError(f"{p}: covariance.matrix: expected a finite {len(names)} x {len(names)} matrix "
                                    f"for covariance.names, got shape {matrix.shape}")  # fmt: skip
+    try:
+        sensor = _sensor(doc.get("sensor_px"))
+    except ValueError as exc:
+        raise CalibrationFileError(f"{p}: sensor_px = {exc}") from None
     rig = doc.get("rig", {}) if isinstance(doc.get("rig"), dict) else {}
     residuals = doc.get("residuals", {}) if isinstance(doc.get("residuals"), dict) else {}
     return GeometryCalibration(
         alignment, names, matrix, p, doc.get("created_utc"), rig.get("sha256"), residuals.get("reduced_chi2"),
         tuple(str(w) for w in doc.get("warnings", [])),
-        rig["geometry"] if isinstance(rig.get("geometry"), dict) else None,
+        rig["geometry"] if isinstance(rig.get("geometry"), dict) else None, sensor,
     )  # fmt: skip
 
 

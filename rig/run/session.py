@@ -80,15 +80,30 @@ def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
 
 
 def _image_settings(rig: RigConfig, sweep: SweepConfig) -> ImageSettings | None:
-    """Image mode's tiles (``[capture] mode = "image"``) on the rig's sensor, None in point mode."""
+    """Image mode's tiles (``[capture] mode = "image"``) on the rig's sensor, None in point mode.
+
+    A camera whose backend reads ``[camera] resolution`` (the simulated one) has that sensor; any other's is
+    learnt from its first whole frame when the run starts (``rig.run.measuring.sensor_size``). Either is
+    checked against the sensor of the geometry calibration's frames, where the calibration records one.
+    """
+    from rig.run.config.camera import camera_keys
     from rig.run.measuring.tiles import DEFAULT_TILE_PX, ImageSettings
 
-    cap = sweep.file.capture
+    cap, cam = sweep.file.capture, rig.file.camera
     if cap.mode != "image":
         return None
-    return ImageSettings(
-        tile_px=cap.tile_px or DEFAULT_TILE_PX, resolution=rig.file.camera.resolution, shape=rig.sample_shape
-    )
+    from rig.run.measuring.sensor_size import check_sensor
+
+    cal = rig.calibration
+    stated = "resolution" in (camera_keys(cam.backend) or ())
+    image = ImageSettings(
+        tile_px=cap.tile_px or DEFAULT_TILE_PX, resolution=cam.resolution if stated else None,
+        shape=rig.sample_shape, expected_sensor=cal.sensor_px if cal is not None else None,
+        expected_from=f"the geometry calibration {cal.path or '(in the manifest)'}" if cal is not None else "",
+    )  # fmt: skip
+    if image.resolution is not None:  # before a run directory exists
+        check_sensor(image.resolution, f"{rig.path}: camera.resolution", image.expected_sensor, image.expected_from)
+    return image
 
 
 def reference_settings(rig: RigConfig) -> ReferenceSettings | None:

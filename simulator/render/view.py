@@ -104,6 +104,24 @@ def _window(view: CameraView, corners: FloatArray) -> Box:
     return x0, y0, x1, y1
 
 
+def sample_box(geometry: RigGeometry, pose: RigPose, camera: CameraSpec, shape: SampleShape = FLAT) -> Box:
+    """The pixel box (x0, y0, x1, y1) holding everything of the sample the camera can see, with a pixel's margin.
+
+    The projected corners of the box the sample fits in bound it: the flat square; a sphere's cube; a cylinder's
+    box of its radius across and the sample's height along.
+    """
+    view = camera_view(geometry, pose, camera)
+    c = _vec3("sample_centre_m", pose.sample_centre_m)
+    t, b = _vec3("sample_tangent", pose.sample_tangent), _vec3("sample_bitangent", pose.sample_bitangent)
+    n = _vec3("sample_normal", pose.sample_normal)
+    r = shape.radius_m if shape.kind != "flat" else 0.0
+    half_t = r if shape.kind != "flat" else 0.5 * geometry.sample_width_m
+    half_b = r if shape.kind == "sphere" else 0.5 * geometry.sample_height_m
+    corners = [c + su * half_t * t + sv * half_b * b - depth * n
+               for su in (-1.0, 1.0) for sv in (-1.0, 1.0) for depth in (0.0, 2.0 * r)]  # fmt: skip
+    return _window(view, np.array(corners))
+
+
 def _roi_mask(
     geometry: RigGeometry, pose: RigPose, light: LightSpec, camera: CameraSpec, shape: SampleShape = FLAT
 ) -> tuple[npt.NDArray[np.bool_], int, int]:

@@ -76,6 +76,14 @@ def test_tethered_returns_the_next_new_file(tmp_path: Path) -> None:
     assert frame.timestamp_s == pytest.approx(0.4)
     assert cam.identity == "Acme R1"
     assert frame.camera_id == "Acme R1"
+    # The shot was fired when capture() was called, long before its file was found: a scan's exposure time.
+    clock.advance(2.0)
+
+    def shoot() -> None:
+        _dng(tmp_path / "IMG_0002.dng", seed=2)
+
+    clock.at(6, shoot)
+    assert cam.capture().extra["triggered_s"] == pytest.approx(2.4) and clock.now() == pytest.approx(2.7)
 
 
 def test_tethered_delivers_files_in_order_of_arrival(tmp_path: Path) -> None:

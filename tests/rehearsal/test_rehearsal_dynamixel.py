@@ -9,6 +9,7 @@ misalignments found by ``gonio calibrate geometry`` through the folder camera.
 
 from __future__ import annotations
 
+import json
 import sys
 
 import pytest
@@ -55,3 +56,15 @@ class TestDynamixel(w.Workflows):
         assert done.status == 0, done.output
         assert len(w.table(tmp / "triggered")) == 8
         assert not list(reh.frames.glob(".gonio-shot-*")), "a request was left behind"
+
+    def test_an_image_mode_run_stopped_resumed_and_analysed(self, rehearsed: w.Rehearsed) -> None:
+        # Image mode on a rig file that states no sensor size, through the folder camera's whole-sensor DNG mosaics.
+        reh, rig, tmp = rehearsed
+        sweep = tmp / "sweep_image.toml"
+        sweep.write_text(w.IMAGE_SWEEP)
+        op = Operator(reh, tmp)
+        whole, _ = w.check_image_run(op, rig, sweep, tmp / "shipped_dynamixel.toml", tmp)
+        report = op.run("analyze", str(whole), "--quiet", "--models", "lambert", "--out", str(tmp / "image-analysis"))
+        assert report.status == 0, report.output
+        fit = json.loads((tmp / "image-analysis" / "fit.json").read_text())
+        assert fit["chosen"] == "lambert"

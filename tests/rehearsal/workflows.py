@@ -15,6 +15,7 @@ import json
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from tests.rehearsal.harness import Operator, Rehearsal
@@ -38,6 +39,25 @@ isotropic = true
 [capture]
 target_snr = 100.0
 """
+
+#: Image mode: four points read in 32 px tiles of the whole sample's footprint (a reference before the first and the
+#: fourth, and after the last), as examples/sweep_image.toml reads a sample on a real rig.
+IMAGE_SWEEP = """name = "rehearsal image grid"
+
+[sweep]
+kind = "grid"
+theta_i_deg = [15.0, 45.0]
+theta_o_deg = [10.0, 35.0]
+phi_o_deg = [180.0]
+isotropic = true
+
+[capture]
+mode = "image"
+tile_px = 32
+target_snr = 50.0
+"""
+#: The rehearsal's sensor (width, height) in pixels: the small ROI's centre is its centre.
+SENSOR = [512, 384]
 
 #: ``examples/rig_misaligned.toml``'s [simulation.misalignment], which its controller is not told.
 MISALIGNED = {"light_zero_deg": 0.5, "camera_zero_deg": -0.3, "tilt_zero_deg": 0.2, "roll_zero_deg": 0.4,
@@ -98,8 +118,16 @@ def check_run_interrupt_resume(op: Operator, rig: Path, sweep: Path, tmp: Path) 
     assert f"gonio resume {cut}" in stopped.output
     resumed = op.run("resume", str(cut), "--quiet")
     assert resumed.status == 0, resumed.output
+    assert len(table(whole)) == 8
+    check_same_table(whole, cut)
+    return whole, cut
+
+
+def check_same_table(whole: Path, cut: Path) -> None:
+    """A resumed run's table is the uninterrupted one's: the same readings, angles and exposures row by row, its
+    BRDF within the noise of the reference readings taken at other times, and the same reference readings."""
     a, b = table(whole), table(cut)
-    assert len(a) == len(b) == 8
+    assert len(a) == len(b)
     for row_a, row_b in zip(a, b, strict=True):
         same = {k: v for k, v in row_a.items() if k != "utc" and k not in TIME_CALIBRATED}
         assert same == {k: row_b[k] for k in same}, f"row {row_a['index']} differs after the resume"
@@ -110,6 +138,39 @@ def check_run_interrupt_resume(op: Operator, rig: Path, sweep: Path, tmp: Path) 
     last_a = {r["slot"]: r for r in references(whole)}
     last_b = {r["slot"]: r for r in references(cut)}
     assert last_a == last_b
+
+
+def check_image_run(op: Operator, rig: Path, sweep: Path, served: Path, tmp: Path) -> tuple[Path, Path]:
+    """An image-mode run through the folder camera's DNG frames: many tiles a capture on the sensor the camera
+    delivered, each tile's BRDF within its errors of the served rig's material; Ctrl-C at the mid-run reference and
+    ``gonio resume`` give the uninterrupted table. ``served``: the rig file the rehearsal serves. Returns both runs."""
+    from rig.run.config.files import load_rig
+    from tests.run_helpers import truth_and_measured
+
+    whole, cut = tmp / "image-whole", tmp / "image-cut"
+    first = op.run("run", str(sweep), "--rig", str(rig), "--out", str(whole), "--quiet")
+    assert first.status == 0, first.output
+    assert "measured 4 points (0 from before), 3 reference readings" in first.output
+    points = [json.loads(line) for line in (whole / "journal.jsonl").read_text().splitlines()]
+    points = [r for r in points if r.get("kind") == "point"]
+    # The rig file states no sensor size: the run learnt it from the first whole frame the camera delivered.
+    assert [r["sensor_px"] for r in points] == [SENSOR] * 4 and {r["tile_px"] for r in points} == {32}
+    rows = table(whole)
+    per_point = [sum(r["index"] == str(p["index"]) for r in rows) for p in points]
+    assert all(n >= 10 for n in per_point), per_point
+    assert len({(r["index"], r["tile"]) for r in rows}) == len(rows)
+    # Each tile's BRDF per colour (its mosaic's whole 2x2 cells binned) against the served rig's material.
+    truth, got, se = truth_and_measured(rows, load_rig(served))
+    z = (got - truth) / se
+    # Within their errors, and errors not so wide that every tile is (the tiles share their reference readings' error).
+    within = [float(np.mean(np.abs(z) < n)) for n in (1, 3)]
+    assert 0.5 <= within[0] <= 0.95 and within[1] >= 0.95, within
+    stopped = op.run("run", str(sweep), "--rig", str(rig), "--out", str(cut), "--quiet",
+                     interrupt_after="before point 3")  # fmt: skip
+    assert stopped.status == 130, stopped.output
+    resumed = op.run("resume", str(cut), "--quiet")
+    assert resumed.status == 0, resumed.output
+    check_same_table(whole, cut)
     return whole, cut
 
 

@@ -85,7 +85,8 @@ class WindowCamera:
         if not (ox <= x0 and oy <= y0 and x1 <= ox + w and y1 <= oy + h):
             raise ImageModeError(
                 f"{self.identity}: image mode reads the sensor window {self.window} but the camera delivered a "
-                f"{w}x{h} frame at {frame.origin_xy}: is [camera] resolution the sensor's size?"
+                f"{w}x{h} frame at {frame.origin_xy}: image mode needs the sensor's whole frames, of one size all run "
+                "(a simulated camera's [camera] resolution)"
             )
         data = frame.data[y0 - oy : y1 - oy, x0 - ox : x1 - ox]
         return dataclasses.replace(frame, data=data, origin_xy=(x0, y0))
@@ -143,7 +144,9 @@ class ImageShot:
             "angle_cov_deg2": np.round(t.angle_cov_deg2.reshape(-1, 16), 12).tolist(),
             "direction_cov": np.round(t.direction_cov.reshape(-1, 16), 15).tolist(),
         }  # fmt: skip
-        return {"tiles": columns, "tile_px": self.tile_px, "tiles_grazing": t.grazing}
+        assert self.capture.image is not None
+        return {"tiles": columns, "tile_px": self.tile_px, "tiles_grazing": t.grazing,
+                "sensor_px": list(self.capture.image.sensor)}  # fmt: skip
 
     def brightest_level(self, reading: Reading) -> Level:
         """The level (counts/s) of the tile holding the brightest pixel: a scan plans its next frame from it."""
@@ -180,7 +183,7 @@ def plan_shot(camera: Camera, capture: CaptureSettings, geometry: RigGeometry, p
     if tiles.count == 0:
         return None
     x0, y0, x1, y1 = tiles.window
-    w, h = image.resolution
+    w, h = image.sensor
     x0, y0, x1, y1 = max(x0 - margin_px, 0), max(y0 - margin_px, 0), x1 + margin_px, y1 + margin_px
     window = (x0 - x0 % 2, y0 - y0 % 2, min(x1 + x1 % 2, w), min(y1 + y1 % 2, h))
     # The goal is each tile's: a tile at the window's mean level has 1/n of its pixels, 1/sqrt(n) of its SNR.

@@ -59,6 +59,7 @@ from rig.run.measuring.measure import CaptureSettings, Level, Reading, take_read
 from rig.run.measuring.motion_guard import MotionGuard, UnsafeMove
 from rig.run.measuring.progress import Eta, format_eta
 from rig.run.measuring.scan import Scanner
+from rig.run.measuring.sensor_size import learn_sensor
 from rig.run.measuring.warm_up import COMPILING, notify_before_compiling, warm_up
 from rig.run.planning.plan import Plan, PlannedPoint
 from rig.run.storage.journal import check_records
@@ -275,6 +276,8 @@ class Runner:
             if len(done) < len(self.plan.points):
                 self._return_to_last_pose(records)
             self._continue_time(records)
+            if len(done) < len(self.plan.points):  # image mode's tiles need the sensor's size
+                self.capture = learn_sensor(self.camera, self.capture, records)
             self.eta.start(len(self.plan.points) - len(done))
             scan = Scanner(self, self.capture.scan_speed_deg_s) if self.capture.motion == "continuous" else None
             swept: set[int] = set()  # indices a scan measured in this call
@@ -447,7 +450,8 @@ class Runner:
         shot = plan_shot(self.camera, self.capture, self.geometry, aligned_pose(self.geometry, actual, self.alignment))
         if shot is None:  # no whole tile on the sample (a grazing view): the point's ROI, and no samples
             reading = self._read(level, dataclasses.replace(self.capture, image=None))
-            empty = {"tiles": {k: [] for k in TILE_KEYS}, "tile_px": image.tile_px, "tiles_grazing": 0}
+            empty = {"tiles": {k: [] for k in TILE_KEYS}, "tile_px": image.tile_px, "tiles_grazing": 0,
+                     "sensor_px": list(image.sensor)}  # fmt: skip
             return reading, empty, reading.level
         with whole_frames(self.camera):
             reading = self._read(level, shot.capture, shot.camera)

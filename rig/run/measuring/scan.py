@@ -16,12 +16,13 @@ point at rest). The arm comes to rest where the device rounds the run's end to (
 of that resting place, which a rounded read-back may never show exactly.
 
 Each frame's directions come from the joints interpolated to the exposure's middle, linearly between the
-time-stamped read-backs just before and just after the frame (``interpolate``); the exposure is taken to end
-when the camera's call returns. Motion blur is uniform motion over the exposure: the moving joint's variance
-gains (speed x exposure)^2 / 12, through the runner's ``_uncertainty`` (which adds a joint's travel squared over
-twelve). Blur beyond ``BLUR_FRACTION`` of the smallest step of the run warns (``ScanTooFast``), naming the blur
-and the speed that would keep it within bounds. Gear play is not taken out during a scan (the load's flank is
-not pinned by a one-sided approach): it stays in the uncertainty.
+time-stamped read-backs just before and just after the frame (``interpolate``); the exposure begins when the
+camera fired the shot where the camera says (a tethered camera: its file arrives long after the exposure), else it
+is taken to end when the camera's call returns (``exposure_window``). Motion blur is uniform motion over the
+exposure: the moving joint's variance gains (speed x exposure)^2 / 12, through the runner's ``_uncertainty``
+(which adds a joint's travel squared over twelve). Blur beyond ``BLUR_FRACTION`` of the smallest step of the run
+warns (``ScanTooFast``), naming the blur and the speed that would keep it within bounds. Gear play is not taken
+out during a scan (the load's flank is not pinned by a one-sided approach): it stays in the uncertainty.
 
 In image mode (``[capture] mode = "image"``) each frame is read as image mode reads a pose
 (``rig.run.measuring.image_capture``): the camera streams whole frames, cut to the window of the tiles at the
@@ -174,6 +175,20 @@ class _Stamped:
         end = self._clock.now()
         self.light.append((before, end, frame, self._read()))
         return frame
+
+
+def exposure_window(before: Stamp, returned_s: float, frame: Frame) -> tuple[float, float]:
+    """Clock times (s) a scan frame's exposure began and ended.
+
+    From when the camera fired it where the camera says (``extra["triggered_s"]``: a tethered camera, whose
+    frame is downloaded and found well after the exposure), else ending when the capture call returned
+    (``returned_s``); never before the read-back that preceded the call nor after its return.
+    """
+    fired = frame.extra.get("triggered_s")
+    if isinstance(fired, int | float) and not isinstance(fired, bool):
+        start = min(max(float(fired), before.t_s), returned_s - frame.exposure_s)
+        return start, start + frame.exposure_s
+    return returned_s - frame.exposure_s, returned_s
 
 
 def scan_exposure(level: Level, capture: Any) -> float:
@@ -358,7 +373,7 @@ class Scanner:
         if shot is None and self._clipped(reading):
             h._event("scan_clipped", f"point {point.index}: a scan frame clipped; measured at rest instead")
             return None
-        t0 = end - frame.exposure_s
+        t0, end = exposure_window(before, end, frame)
         mid = interpolate(before, after, 0.5 * (t0 + end))
         joints = Joints.from_dict({**{k: float(v) for k, v in point.joints.as_dict().items()}, **mid})
         # The travel during the exposure: variance (speed x exposure)^2 / 12. From the device's speed: two

@@ -54,21 +54,36 @@ DEFAULT_TILE_PX = 8
 class ImageSettings:
     """Image mode: tile side (pixels), the sensor (width, height) in pixels, the sample's shape, grazing limit (deg).
 
+    ``resolution`` None: the sensor's size is learnt from the first whole frame the camera delivers
+    (``rig.run.measuring.sensor_size``), checked against ``expected_sensor`` (width, height) where something
+    states one (a geometry calibration's frames), ``expected_from`` naming what.
     ``grazing_limit_deg``: tiles with any ray whose theta_i or theta_o exceeds it are left out (None: the rig's
     ``max_zenith_deg``).
     """
 
     tile_px: int = DEFAULT_TILE_PX
-    resolution: tuple[int, int] = (32, 32)
+    resolution: tuple[int, int] | None = (32, 32)
     shape: SampleShape = field(default_factory=SampleShape)
     grazing_limit_deg: float | None = None
+    expected_sensor: tuple[int, int] | None = None
+    expected_from: str = ""
 
     def __post_init__(self) -> None:
         if not (isinstance(self.tile_px, int) and self.tile_px >= 1):
             raise ValueError(f"ImageSettings.tile_px = {self.tile_px!r}: expected a whole number of pixels >= 1")
+        if self.resolution is None:
+            return
         w, h = self.resolution
         if not (w >= self.tile_px and h >= self.tile_px):
             raise ValueError(f"ImageSettings.resolution = {self.resolution!r}: smaller than one {self.tile_px}-px tile")
+
+    @property
+    def sensor(self) -> tuple[int, int]:
+        """The sensor's (width, height) in pixels, once known."""
+        if self.resolution is None:
+            raise ValueError("ImageSettings.resolution: the sensor's size is not known yet (learn_sensor reads it "
+                             "from the camera's first whole frame)")  # fmt: skip
+        return self.resolution
 
 
 @dataclass(frozen=True)
@@ -110,8 +125,8 @@ def _grid(x0: int, y0: int, x1: int, y1: int, sub: int) -> tuple[FloatArray, Flo
 def tile_geometry(geometry: RigGeometry, pose: RigPose, image: ImageSettings) -> TileGeometry:
     """The tiles of the sensor that see the sample at ``pose`` (see the module docstring)."""
     k = image.tile_px
-    w, h = image.resolution
-    view = camera_of(geometry, pose, image.resolution)
+    w, h = image.sensor
+    view = camera_of(geometry, pose, image.sensor)
     origin = view.origin
     limit = geometry.max_zenith_deg if image.grazing_limit_deg is None else image.grazing_limit_deg
     cols, rows = w // k, h // k
@@ -177,7 +192,7 @@ def tile_directions(geometry: RigGeometry, pose: RigPose, image: ImageSettings,
         return np.zeros((0, 4)), np.zeros((0, 4))
     k, s = image.tile_px, SUBPIXELS
     x0, y0, x1, y1 = tiles.window
-    view = camera_of(geometry, pose, image.resolution)
+    view = camera_of(geometry, pose, image.sensor)
     gx, gy = _grid(x0, y0, x1, y1, s)
     hits = surface_hits(image.shape, geometry, pose, view.origin, view.ray(gx, gy).reshape(-1, 3))
     ang = local_angles(hits, np.asarray(pose.light_position_m, dtype=np.float64), view.origin)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from pathlib import Path
 from typing import Any
@@ -9,11 +10,12 @@ from typing import Any
 import numpy as np
 import pytest
 
+from acquisition.frame import Frame
 from model.fit.angular import angular_variance
 from model.fit.samples import Samples
 from rig.run.config.files import GRBL_STEPS_PER_DEGREE, ConfigError, material_from, parse
 from rig.run.config.schema import SweepFile
-from rig.run.measuring.scan import ScanTooFast, Stamp, interpolate
+from rig.run.measuring.scan import ScanTooFast, Stamp, exposure_window, interpolate
 from rig.run.session import capture_settings, make_plan, manifest, options_for
 from rig.run.storage.store import RunStore
 from simulator.from_config import rig_from, spec_from
@@ -50,6 +52,18 @@ def test_interpolation_is_linear_between_time_stamped_read_backs() -> None:
     a, b = Stamp(1.0, {"camera": 10.0}), Stamp(3.0, {"camera": 14.0})
     assert interpolate(a, b, 2.5) == {"camera": 13.0}
     assert interpolate(b, b, 9.0) == {"camera": 14.0}
+
+
+def test_a_tethered_frames_exposure_is_placed_where_the_camera_fired_it_not_where_its_file_arrived() -> None:
+    before = Stamp(10.0, {"camera": 0.0})
+    frame = Frame(np.zeros((4, 4)), "linear", 0.1)
+    assert exposure_window(before, 12.0, frame) == (pytest.approx(11.9), 12.0)  # a camera that says nothing
+    fired = dataclasses.replace(frame, extra={"triggered_s": 10.05})
+    assert exposure_window(before, 12.0, fired) == (pytest.approx(10.05), pytest.approx(10.15))
+    # Never before the read-back that preceded the call, nor ending after its return.
+    early = dataclasses.replace(frame, extra={"triggered_s": 9.0})
+    late = dataclasses.replace(frame, extra={"triggered_s": 11.99})
+    assert exposure_window(before, 12.0, early)[0] == 10.0 and exposure_window(before, 12.0, late)[1] == 12.0
 
 
 def _run(tmp_path: Path, material: dict[str, Any], light_w_sr: float = 1.0, on: str = "dynamixel",
