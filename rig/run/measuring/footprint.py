@@ -44,14 +44,14 @@ class Cells:
 
 def cell_side(image: ImageSettings, grid: int = GRID) -> int:
     """Tiles per cell side (s) for a sensor of image.resolution pixels in tiles of image.tile_px."""
-    cols, rows = image.resolution[0] // image.tile_px, image.resolution[1] // image.tile_px
+    cols, rows = image.sensor[0] // image.tile_px, image.sensor[1] // image.tile_px
     return max(1, math.ceil(max(cols, rows) / grid))
 
 
 def footprint_cells(geometry: RigGeometry, pose: RigPose, image: ImageSettings, grid: int = GRID) -> Cells:
     """The cells of the sample's footprint at ``pose`` (the rig's pose, metres) for image mode's ``image``."""
     s = cell_side(image, grid)
-    cols, rows = image.resolution[0] // image.tile_px, image.resolution[1] // image.tile_px
+    cols, rows = image.sensor[0] // image.tile_px, image.sensor[1] // image.tile_px
     coarse = dataclasses.replace(image, tile_px=1, resolution=(max(cols // s, 1), max(rows // s, 1)))
     t = tile_geometry(geometry, pose, coarse)
     return Cells(np.asarray(t.angles_deg, dtype=np.float64).reshape(-1, 4), np.full(t.count, float(s * s)))

@@ -20,6 +20,7 @@ run of at least ``MIN_SCAN_POINTS`` points (its first included), else stop. The 
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -64,12 +65,28 @@ class ModeChoice:
         return f"capture mode {self.mode}, motion {self.motion}: {self.reason}"
 
 
+def known_sensor(rig: Any) -> tuple[int, int] | None:
+    """The camera's sensor (width, height) in pixels before any frame: [camera] resolution where its backend reads
+    it (the simulated camera), else the geometry calibration's frames', else None (learnt from the first frame)."""
+    from rig.run.config.camera import camera_keys
+
+    cam = rig.file.camera
+    if "resolution" in (camera_keys(cam.backend) or ()):
+        return (int(cam.resolution[0]), int(cam.resolution[1]))
+    cal = getattr(rig, "calibration", None)
+    sensor = getattr(cal, "sensor_px", None)
+    return (int(sensor[0]), int(sensor[1])) if sensor is not None else None
+
+
 def tiles_per_capture(rig: Any, plan: Plan, tile_px: int | None = None) -> float:
-    """The median estimated tiles (samples) per capture over up to PROBE_POSES of the plan's poses."""
+    """The median estimated tiles (samples) per capture over up to PROBE_POSES of the plan's poses (NaN: the
+    sensor's size is not known before the camera's first frame)."""
+    sensor = known_sensor(rig)
+    if sensor is None:
+        return math.nan
     if not plan.points:
         return 0.0
-    image = ImageSettings(tile_px=tile_px or DEFAULT_TILE_PX, resolution=tuple(rig.file.camera.resolution),
-                          shape=rig.sample_shape)  # fmt: skip
+    image = ImageSettings(tile_px=tile_px or DEFAULT_TILE_PX, resolution=sensor, shape=rig.sample_shape)
     picks = np.unique(np.linspace(0, len(plan.points) - 1, min(PROBE_POSES, len(plan.points))).round().astype(int))
     # A sensor of at most GRID tiles a side is counted exactly (few tiles, cheap, and there the line is near).
     exact = cell_side(image) == 1
@@ -101,6 +118,10 @@ def choose_image(rig: Any, plan: Plan, tile_px: int | None, motion: str) -> Mode
     motion stays the file's."""
     k = tile_px or DEFAULT_TILE_PX
     n = tiles_per_capture(rig, plan, k)
+    if math.isnan(n):
+        return ModeChoice("point", motion, "the camera's sensor size is not known before its first frame (its backend "
+                          "reads no [camera] resolution and no geometry calibration records one): set mode = "
+                          '"image" to read tiles on the sensor the first frame shows', None, k)  # fmt: skip
     if n >= MIN_IMAGE_TILES:
         return ModeChoice("image", motion, f"the camera resolves the sample into ~{n:.0f} tiles of {k} px per "
                           f"capture (>= {MIN_IMAGE_TILES})", n, k)  # fmt: skip

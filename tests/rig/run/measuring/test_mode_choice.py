@@ -138,3 +138,15 @@ def test_gonio_plan_and_run_print_what_auto_chose(tmp_path: Path, capsys: pytest
     assert "capture mode image, motion stop" in capsys.readouterr().err
     manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
     assert manifest["sweep"]["capture"] == {**manifest["sweep"]["capture"], "mode": "image", "tile_px": 8}
+
+
+def test_auto_on_a_camera_whose_sensor_is_learnt_from_its_first_frame_measures_points_and_says_why() -> None:
+    from rig.run.config.files import load_rig
+
+    # A folder camera's rig file states no resolution, and this one has no geometry calibration recording one:
+    # its sensor is known only once a frame arrives, too late to decide the mode of the run.
+    rig = load_rig(Path(__file__).resolve().parents[4] / "examples" / "rig_dynamixel.toml")
+    sweep = _auto()
+    decided, choice = resolve_mode(rig, sweep, make_plan(rig, sweep))
+    assert choice is not None and choice.mode == "point" and decided.file.capture.mode == "point"
+    assert "sensor size is not known" in choice.reason and choice.tiles is None
