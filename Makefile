@@ -25,7 +25,8 @@ test: lint
 
 # In the order `make bench` runs them; each rewrites its own section of docs/benchmarks.md.
 BENCHMARKS := model_throughput model_tradeoffs hdr exposure_plan bus_latency simulator sweep fit batch analyze \
-              tabulated camera_calibration "geometry_calibration --rigs 8" calibration_payoff image_mode
+              tabulated camera_calibration "geometry_calibration --rigs 8" calibration_payoff image_mode \
+              continuous_scan exposure_ahead adaptive_modes
 
 bench: $(STAMP)
 	for b in $(BENCHMARKS); do $(BIN)/python -m bench.$$b || exit 1; done

@@ -151,13 +151,15 @@ def load_adaptive(path: Path, log: Log, errors: str = "total") -> tuple[SourceSu
     material, refs = _truth(rig, rows, path)
     budget = state["settings"].get("budget")
     rounds = len({str(r.get("round")) for r in rows})
+    # The budget counts captures (poses): in image mode one capture is a row per tile.
+    captures = len({(str(r.get("round")), str(r.get("index"))) for r in rows})
     summary = SourceSummary(
         "adaptive", path, "finished" if finished else "stopped",
         None if finished else f"interrupted after {rounds} round(s); gonio adaptive --resume {path} continues it",
-        len(rows), budget, 0, int(samples.lower_bound.sum()), "adaptive", rig.file.name,
+        captures, budget, 0, int(samples.lower_bound.sum()), "adaptive", rig.file.name,
         f"adaptive sweep, model {state['model']}", material, samples.notes, tuple(state.get("metadata", {}).items()),
     )  # fmt: skip
-    log(f"loaded adaptive sweep {path}: {len(rows)} captures in {rounds} round(s), {samples.n} usable samples")
+    log(f"loaded adaptive sweep {path}: {captures} captures in {rounds} round(s), {samples.n} usable samples")
     return summary, samples, refs
 
 

@@ -36,10 +36,8 @@ written only when all three run.
 from __future__ import annotations
 
 import csv
-import math
 import tempfile
 import time
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -48,15 +46,22 @@ import numpy as np
 
 from analysis.batch.tradeoff import KEYS, MATERIALS, MAX_THETA, REFERENCE_SNR, SNR, Material, grid_design
 from bench._common import bench_parser, format_table, load_average, machine_description, markdown_table, record
-from model.fit.angular import angular_variance, fit_with_angular
-from model.fit.design import ErrorPairs, brdf_error, error_pairs
-from model.fit.footprint import footprint_average
-from model.fit.samples import Samples
+from bench._modes import (
+    ERROR_GOAL,
+    POINT_RESOLUTION,
+    THROUGHPUT_GOAL,
+    cut_at,
+    honest,
+    mode_rig,
+    pct,
+    point_times,
+    score,
+)
+from model.fit.design import ErrorPairs, error_pairs
 from rig.run.adaptive.sweep import measure_points
-from rig.run.config.files import RigConfig, material_from, parse, rig_config, sweep_config
-from rig.run.config.schema import RigFile, SweepFile
+from rig.run.config.files import RigConfig, parse, sweep_config
+from rig.run.config.schema import SweepFile
 from rig.run.session import start_run
-from rig.run.storage.store import RunStore
 
 #: Tile sides (pixels) of image mode: the dial (--quick: its two ends, the smallest tiles costing the most CPU).
 TILES = (4, 8, 16)
@@ -65,17 +70,9 @@ QUICK_TILES = (4, 16)
 #: hundreds to thousands at these tile sizes; --quick's smaller camera has a quarter as many.
 RESOLUTION = 384
 QUICK_RESOLUTION = 256
-#: Stop-and-go's camera and ROI, sweep_tradeoff's.
-POINT_RESOLUTION = 512
 #: The curved variant of the full run: which material, and the sphere's radius (mm).
 SPHERE_MATERIAL = 2
 SPHERE_RADIUS_MM = 20.0
-#: Goals of issue 30.
-THROUGHPUT_GOAL = 100.0
-ERROR_GOAL = 0.5
-NOMINAL = (0.683, 0.954, 0.997)
-#: Least tolerance on each "within k SE" fraction, however many readings (the binomial scatter may be larger).
-TOLERANCE = (0.05, 0.02, 0.005)
 
 
 @dataclass
@@ -103,20 +100,6 @@ class Outcome:
         return self.samples / self.rig_time_s * 3600.0
 
 
-def _rig(material: Material, seed: int, resolution: int, sample: dict[str, Any] | None) -> RigConfig:
-    """sweep_tradeoff's rig (``analysis.batch.tradeoff.rig_for``) on a camera of ``resolution`` px, a 4 px ROI."""
-    c = resolution // 2
-    doc: dict[str, Any] = {
-        "name": "image-mode bench rig",
-        "simulation": {"material": material.table, "seed": seed},
-        "camera": {"resolution": [resolution, resolution], "roi": [c - 2, c - 2, c + 2, c + 2]},
-        "reference": {"every": 25, "target_snr": REFERENCE_SNR},
-    }
-    if sample is not None:
-        doc["sample"] = sample
-    return rig_config(parse(doc, RigFile, "<image-mode rig>"), "<image-mode rig>")
-
-
 def _image_run(rig: RigConfig, points: np.ndarray, tile_px: int, out: Path) -> tuple[list[dict[str, Any]], float]:
     """Run the poses (N, 4) in degrees in image mode with ``tile_px`` tiles: the table's rows and the rig time (s)."""
     table = {"name": f"image mode {tile_px} px", "sweep": {"kind": "list", "points": points.tolist()},
@@ -127,68 +110,28 @@ def _image_run(rig: RigConfig, points: np.ndarray, tile_px: int, out: Path) -> t
         return list(csv.DictReader(fh)), summary.rig_time_s
 
 
-def _point_times(run: Path) -> dict[int, float]:
-    """Each point's index and the run time (s) its reading ended at, from the run's journal."""
-    return {int(r["index"]): float(r["run_time_s"]) for r in RunStore.read(run).records() if r["kind"] == "point"}
-
-
-def _within(z: np.ndarray) -> list[float]:
-    return [float(np.mean(np.abs(z) <= k)) for k in (1, 2, 3)]
-
-
-def _score(rig: RigConfig, material: Material, rows: list[dict[str, Any]], pairs: ErrorPairs) -> dict[str, Any]:
-    """Fit the rows with effective errors, score against the truth; the readings' z against the truth's mean over
-    each row's footprint."""
-    samples = Samples.from_table_rows(rows, errors="point")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res, _ = fit_with_angular(material.spec, samples)
-    truth = material_from(rig)
-    exact = Samples.from_table_rows(rows, errors="readings")
-    pred = footprint_average(truth, exact.wi, exact.wo, exact.direction_cov)
-    footprint = angular_variance(truth, exact)
-    keep = ~samples.lower_bound
-    z_read = ((samples.value - pred) / exact.std_error)[keep].reshape(-1)
-    z_foot = ((samples.value - pred) / np.sqrt(np.square(exact.std_error) + footprint))[keep].reshape(-1)
-    return {"error": brdf_error(res.model, truth, pairs), "shape": brdf_error(res.model, truth, pairs, scale_free=True),
-            "within_readings": _within(z_read), "within_footprint": _within(z_foot), "n_z": len(z_foot)}  # fmt: skip
-
-
 def measure_sample(material: Material, seed: int, n_points: int, resolution: int, tiles: tuple[int, ...], work: Path,
                    pairs: ErrorPairs, sample: dict[str, Any] | None = None) -> list[Outcome]:  # fmt: skip
     """Stop-and-go then image mode at every tile size on one sample; their outcomes (stop-and-go first)."""
-    point_rig = _rig(material, seed, POINT_RESOLUTION, sample)
+    point_rig = mode_rig(material, seed, POINT_RESOLUTION, sample)
     points = grid_design(point_rig, n_points)
     cpu = time.process_time()
     rows, rig_s = measure_points(point_rig, points, work / "point", SNR)
-    s = _score(point_rig, material, rows, pairs)
+    s = score(point_rig, material, rows, pairs)
     out = [Outcome("stop-and-go", "4 px ROI", len(points), len(rows), rig_s, len(points), len(rows), rig_s,
                    s["error"], s["shape"], s["within_readings"], s["within_footprint"], s["n_z"],
                    time.process_time() - cpu)]  # fmt: skip
-    image_rig = _rig(material, seed, resolution, sample)
+    image_rig = mode_rig(material, seed, resolution, sample)
     for tile in tiles:
         cpu = time.process_time()
         run = work / f"image{tile}"
         rows, image_s = _image_run(image_rig, points, tile, run)
-        ends = _point_times(run)
-        kept_idx = {i for i, t in ends.items() if t <= rig_s}
-        kept = [r for r in rows if int(r["index"]) in kept_idx]
-        s = _score(image_rig, material, kept, pairs)
-        out.append(Outcome("image", f"{tile} px tiles", len(ends), len(rows), image_s, len(kept_idx), len(kept),
-                           max((ends[i] for i in kept_idx), default=0.0), s["error"], s["shape"],
-                           s["within_readings"], s["within_footprint"], s["n_z"],
+        kept, n_kept, kept_s = cut_at(run, rows, rig_s)
+        s = score(image_rig, material, kept, pairs)
+        out.append(Outcome("image", f"{tile} px tiles", len(point_times(run)), len(rows), image_s, n_kept, len(kept),
+                           kept_s, s["error"], s["shape"], s["within_readings"], s["within_footprint"], s["n_z"],
                            time.process_time() - cpu))  # fmt: skip
     return out
-
-
-def _honest(within: list[float], n: int) -> bool:
-    """Whether each fraction within 1/2/3 SE is its normal share, to the binomial scatter or TOLERANCE."""
-    return all(abs(w - q) <= max(3.0 * math.sqrt(q * (1.0 - q) / max(n, 1)), tol)
-               for w, q, tol in zip(within, NOMINAL, TOLERANCE, strict=True))  # fmt: skip
-
-
-def _pct(within: list[float]) -> str:
-    return "/".join(f"{100 * w:.1f}" for w in within)
 
 
 HEAD = ["sample", "mode", "dial", "captures", "samples", "samples / capture", "rig time (s)", "samples / rig-h",
@@ -204,8 +147,8 @@ def table_rows(label: str, outcomes: list[Outcome]) -> list[list[str]]:
         rows.append([label, o.mode, o.dial, str(o.captures), str(o.samples), f"{o.samples / max(o.captures, 1):.0f}",
                      f"{o.rig_time_s:.1f}", f"{o.per_hour:.3g}", f"{o.per_hour / anchor.per_hour:.0f}",
                      str(o.kept_captures), str(o.kept_samples), f"{o.error:.3g}", f"{o.error / anchor.error:.2f}",
-                     f"{o.shape_error:.3g}", _pct(o.within_readings), _pct(o.within_footprint),
-                     "yes" if _honest(o.within_readings, o.n_z) else "no", f"{o.cpu_s:.0f}"])  # fmt: skip
+                     f"{o.shape_error:.3g}", pct(o.within_readings), pct(o.within_footprint),
+                     "yes" if honest(o.within_readings, o.n_z) else "no", f"{o.cpu_s:.0f}"])  # fmt: skip
     return rows
 
 
@@ -218,10 +161,10 @@ def verdicts(label: str, outcomes: list[Outcome]) -> list[str]:
         lines.append(f"{label}, {o.dial}: samples per rig-hour {speed:.0f}x stop-and-go (goal >= {THROUGHPUT_GOAL:g}x: "
                      f"{'met' if speed >= THROUGHPUT_GOAL else 'NOT met'}); error at equal rig time {err:.2f}x "
                      f"(goal <= {ERROR_GOAL:g}x: {'met' if err <= ERROR_GOAL else 'NOT met'}); errors honest: "
-                     f"{'yes' if _honest(o.within_readings, o.n_z) else 'NO'}"
-                     f" ({_pct(o.within_readings)} % within 1/2/3 SE of {o.n_z} readings)")  # fmt: skip
-    ok = _honest(anchor.within_readings, anchor.n_z)
-    lines.append(f"{label}, stop-and-go: errors honest: {'yes' if ok else 'NO'} ({_pct(anchor.within_readings)} % "
+                     f"{'yes' if honest(o.within_readings, o.n_z) else 'NO'}"
+                     f" ({pct(o.within_readings)} % within 1/2/3 SE of {o.n_z} readings)")  # fmt: skip
+    ok = honest(anchor.within_readings, anchor.n_z)
+    lines.append(f"{label}, stop-and-go: errors honest: {'yes' if ok else 'NO'} ({pct(anchor.within_readings)} % "
                  f"within 1/2/3 SE of {anchor.n_z} readings)")  # fmt: skip
     return lines
 

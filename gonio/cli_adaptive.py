@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from gonio.cli_errors import CliError
@@ -44,6 +45,25 @@ def _check_options(args: argparse.Namespace) -> None:
         raise bad("--reference-snr", args.reference_snr, "a positive signal-to-noise ratio")
     if not 0 <= args.seed < 2**32:
         raise bad("--seed", args.seed, "a whole number from 0 to 4294967295")
+    _check_mode_options(args, bad)
+
+
+def _check_mode_options(args: argparse.Namespace, bad: Callable[[str, object, str], CliError]) -> None:
+    """--mode, --tile-px, --motion and --scan-speed, by the sweep file's [capture] rules (argparse checks the names)."""
+    from rig.run.adaptive.settings import MAX_SCAN_SPEED_DEG_S, MAX_TILE_PX
+
+    if args.tile_px is not None:
+        if not 1 <= args.tile_px <= MAX_TILE_PX:
+            raise bad("--tile-px", args.tile_px, f"a tile side in pixels, 1 to {MAX_TILE_PX}")
+        if args.mode == "point":
+            raise CliError(f"--tile-px {args.tile_px}: has no meaning with --mode point (each capture reads the "
+                           "camera's ROI): use --mode image or auto, or leave --tile-px out")  # fmt: skip
+    if args.scan_speed is not None:
+        if not (math.isfinite(args.scan_speed) and 0 < args.scan_speed <= MAX_SCAN_SPEED_DEG_S):
+            raise bad("--scan-speed", args.scan_speed, f"deg/s of joint, > 0 and at most {MAX_SCAN_SPEED_DEG_S:g}")
+        if args.motion != "continuous":
+            raise CliError(f"--scan-speed {args.scan_speed:g}: has no meaning with --motion stop (every capture at "
+                           "rest): use --motion continuous, or leave --scan-speed out")  # fmt: skip
 
 
 def _adaptive(args: argparse.Namespace) -> int:
@@ -53,6 +73,12 @@ def _adaptive(args: argparse.Namespace) -> int:
     BRDF's expected error the most (first order, from the fit's Jacobian). Each round is an ordinary run in
     OUT/round-NN; OUT/samples.csv holds every round's rows and OUT/adaptive.json the settings and fits. An interrupted
     sweep continues with --resume OUT (or gonio resume OUT); gonio analyze OUT analyses every round together.
+
+    --budget counts captures (poses). --mode image makes each capture a sample per tile of the sample's footprint
+    (the sweep file's [capture] mode); --mode auto measures the first round in image mode where the camera resolves
+    the sample into many tiles and later rounds in point mode, scanning a round continuously where its plan has long
+    runs in one joint and --motion continuous allows it. Each round's mode and motion, and why, are in the round's
+    line and in OUT/adaptive.json.
 
     Example: gonio adaptive --rig examples/rig_simulated.toml --out runs/gold-adaptive --model ggx_conductor
     --budget 100
@@ -75,11 +101,14 @@ def _adaptive(args: argparse.Namespace) -> int:
     try:
         settings = AdaptiveSettings(budget=args.budget, initial=args.initial, batch=args.batch,
                                     max_theta_deg=args.max_theta, target_snr=args.snr,
-                                    reference_snr=args.reference_snr, seed=args.seed)  # fmt: skip
+                                    reference_snr=args.reference_snr, seed=args.seed, mode=args.mode,
+                                    tile_px=args.tile_px, motion=args.motion,
+                                    scan_speed_deg_s=args.scan_speed)  # fmt: skip
     except ValueError as exc:  # the settings are the command line's options
         raise CliError(str(exc)) from None
     rig = load_rig_option(args.rig)
-    print(f"adaptive sweep into {args.out}: {settings.budget} captures, model {args.model}", file=sys.stderr)
+    print(f"adaptive sweep into {args.out}: {settings.budget} captures, model {args.model}, mode {settings.mode}, "
+          f"motion {settings.motion}", file=sys.stderr)  # fmt: skip
     # A bar over the captures (rounds differ in size), its ETA from the rounds done; round lines print above it.
     bar = tqdm(total=settings.budget, desc="adaptive", unit="capture", disable=args.quiet, dynamic_ncols=True)
 
@@ -111,12 +140,24 @@ def add_adaptive_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]
     p.add_argument("--budget", type=int, default=100, help="captures in all (default 100)")
     p.add_argument("--initial", type=int, default=20, help="captures of the first round (default 20)")
     p.add_argument("--batch", type=int, default=10, help="captures per later round (default 10)")
-    p.add_argument("--snr", type=float, default=100.0, help="SNR goal of each capture (default 100)")
+    p.add_argument("--snr", type=float, default=100.0,
+                   help="SNR goal of each sample: a point's reading, or in image mode each tile's (default 100)")
     p.add_argument("--reference-snr", type=float, default=None,
                    help="SNR goal of the reference readings (default: the rig's [reference] target_snr); each "
                    "round is its own run with about two, so a matte sample, whose fit is all calibration, "
                    "wants them about 2.5x the SNR a single long run would use")  # fmt: skip
     p.add_argument("--max-theta", type=float, default=70.0, help="largest zenith of any capture, deg (default 70)")
+    p.add_argument("--mode", choices=("point", "image", "auto"), default="point",
+                   help="point: each capture one reading of the camera's ROI (default); image: every tile of the "
+                   "sample's footprint a sample; auto: the first round in image mode where the camera resolves the "
+                   "sample into many tiles, later rounds in point mode")  # fmt: skip
+    p.add_argument("--tile-px", type=int, default=None,
+                   help="image mode's tile side in pixels (default 8; with --mode image or auto)")  # fmt: skip
+    p.add_argument("--motion", choices=("stop", "continuous"), default="stop",
+                   help="stop: every capture at rest (default); continuous: runs of points in one joint scanned at "
+                   "constant speed (with --mode auto: only the rounds whose plan has long runs)")  # fmt: skip
+    p.add_argument("--scan-speed", type=float, default=None,
+                   help="the scanning joint's speed in continuous motion, deg/s (default 2)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the candidate pool (default 0)")
     p.add_argument("--metadata", action="append", metavar="KEY=VALUE",
                    help="what the sweep is about (sample=..., operator=..., notes=..., or a key of your own; "

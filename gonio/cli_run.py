@@ -85,7 +85,7 @@ def _run(args: argparse.Namespace) -> int:
         print(f"warning: {warning}", file=sys.stderr)
     try:
         with _sigterm_as_interrupt():
-            _report(start_run(rig, sweep, out, progress=not args.quiet))
+            _report(start_run(rig, sweep, out, progress=not args.quiet, log=lambda m: print(m, file=sys.stderr)))
     except RunStopped as exc:
         return _stopped(exc)
     return EXIT_OK
@@ -149,11 +149,14 @@ def _plan(args: argparse.Namespace) -> int:
     Example: gonio plan examples/sweep_grid.toml --rig examples/rig_simulated.toml --list
     """
     from rig.run.config.files import load_sweep
-    from rig.run.session import make_plan
+    from rig.run.session import make_plan, resolve_mode
 
     rig, sweep = load_rig_option(args.rig), load_sweep(args.sweep)
     plan = make_plan(rig, sweep, progress=not args.quiet)
     print(f"rig: {rig.file.name} ({rig.path}); sweep: {sweep.file.name} ({sweep.path})")
+    _, choice = resolve_mode(rig, sweep, plan) if plan.points else (sweep, None)
+    if choice is not None:
+        print(choice.describe())
     print(rig.calibration.describe() if rig.calibration else "geometry calibration: none (the rig as drawn)")
     for warning in rig.calibration_warnings():
         print(f"warning: {warning}", file=sys.stderr)

@@ -98,8 +98,9 @@ class SimulatedGrblRig(SimulatedRig):
         return coordinate * axis.units_per_degree
 
     def moving(self) -> bool:
-        """Whether the steppers run now (GRBL's Run or Jog state): a frame taken then is blurred along the motion."""
-        return self.grbl is not None and self.controller.state.split(":")[0] in ("Run", "Jog", "Home")
+        """Whether the steppers run now (a move, homing, or a feed hold still slowing down): a frame taken then is
+        blurred along the motion."""
+        return self.grbl is not None and self.controller.stepping
 
     @property
     def port(self) -> str:

@@ -242,6 +242,10 @@ class Tether:
             stop.wait(poll_s)
 
 
+#: The controller's folder poll (s) in a rig file the rehearsal writes: frames arrive whole, so polls can be quick.
+REHEARSAL_POLL_S = 0.02
+
+
 def _toml(value: object) -> str:
     """A TOML value of a string, number, boolean or list of those."""
     if isinstance(value, bool):
@@ -288,8 +292,11 @@ def controller_rig_text(rig: RigConfig, sim: SimulatedRig, link: str, folder: Pa
             "max_accel_deg_s2": axis.max_accel_deg_s2,
         })  # fmt: skip
     cam = f.camera
+    # The rehearsal renames each frame into the folder whole (write_dng), so one poll that sees it is enough;
+    # a real tethering program may write in place and needs the folder camera's default two polls.
     camera: dict[str, object] = {"backend": "folder", "folder": str(folder), "roi": list(roi),
                                  "min_exposure_s": cam.min_exposure_s, "max_exposure_s": cam.max_exposure_s,
+                                 "stable_polls": 1, "poll_interval_s": REHEARSAL_POLL_S,
                                  "calibration": cam.calibration, "flat_field": cam.flat_field}  # fmt: skip
     for key in ("calibration", "flat_field"):
         if isinstance(camera[key], str):

@@ -173,3 +173,21 @@ def choose_batch(cov: Array, g_cand: Array, sigma_cand: Array, a: Array, k: int)
         cov = 0.5 * (cov + cov.T)
         after[step] = expected_error(a, cov)
     return Batch(np.asarray(picked, dtype=np.intp), before, after)
+
+
+def pooled(g: Array, sigma: Array, owner: IntArray, m: int) -> tuple[Array, Array]:
+    """Each of m candidates' readings (rows of g (N, C, P), noise sigma (N, C) in 1/sr; ``owner`` (N,) names the
+    candidate of each row) as P virtual readings of unit noise with the same information: what choose_batch
+    needs of a capture that gives many readings (image mode's tiles).
+
+    A candidate's information F = sum g g^T / sigma^2 is (P, P), of rank at most P; with F = L L^T the rows of
+    L^T, each with noise 1, carry exactly F, so choose_batch's update of Sigma by a pick is the update by all its
+    readings at once. Returns g (m, P, P) and sigma (m, P) of ones.
+    """
+    gw = g / np.maximum(sigma, 1e-300)[:, :, None]
+    p = g.shape[-1]
+    info = np.zeros((m, p, p))
+    np.add.at(info, owner, np.einsum("ncp,ncq->npq", gw, gw))
+    values, vectors = np.linalg.eigh(0.5 * (info + np.transpose(info, (0, 2, 1))))
+    root = vectors * np.sqrt(np.maximum(values, 0.0))[:, None, :]  # L = V sqrt(lambda): L L^T = F
+    return np.transpose(root, (0, 2, 1)), np.ones((m, p))

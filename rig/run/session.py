@@ -11,6 +11,7 @@ or a lab's own.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -31,7 +32,7 @@ from rig.run.config.files import (
     saved_rig,
     sweep_config,
 )
-from rig.run.config.schema import DEFAULT_SCAN_SPEED_DEG_S, SweepFile, run_metadata
+from rig.run.config.schema import SweepFile, run_metadata
 from rig.run.storage.journal import check_records
 from rig.run.storage.store import JOURNAL, RunStore, RunStoreError
 
@@ -41,9 +42,11 @@ from rig.run.storage.store import JOURNAL, RunStore, RunStoreError
 if TYPE_CHECKING:
     from rig.run.backends.base import Instruments, StartPose
     from rig.run.measuring.measure import CaptureSettings
+    from rig.run.measuring.mode_choice import ModeChoice
     from rig.run.measuring.runner import ReferenceSettings, RunOptions, RunSummary
     from rig.run.measuring.tiles import ImageSettings
     from rig.run.planning.plan import Plan
+    from rig.run.planning.scans import ScanTiming
 
 
 class RunFinished(RunStoreError):
@@ -54,6 +57,7 @@ def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
     """The capture settings of a run from the rig's camera and the sweep's [capture] table."""
     from acquisition.exposure.spec import CameraTiming
     from rig.run.calibrate import camera_flat_field, camera_noise
+    from rig.run.measuring.exposure_sources import load_sources
     from rig.run.measuring.measure import CaptureSettings
 
     cam, cap = rig.file.camera, sweep.file.capture
@@ -69,7 +73,9 @@ def capture_settings(rig: RigConfig, sweep: SweepConfig) -> CaptureSettings:
         roi=cam.roi if cam.backend != "simulated" else None,
         flat_field=camera_flat_field(rig),
         image=_image_settings(rig, sweep),
-        scan_speed_deg_s=(cap.scan_speed_deg_s or DEFAULT_SCAN_SPEED_DEG_S) if cap.motion == "continuous" else None,
+        motion=cap.motion,
+        scan_speed_deg_s=cap.scan_speed_deg_s,  # None in continuous motion: chosen per scan run
+        exposure_sources=load_sources(sweep.path, cap.exposure_from, cap.exposure_model),
     )
 
 
@@ -162,8 +168,20 @@ def make_plan(rig: RigConfig, sweep: SweepConfig, *, progress: bool = False) -> 
             reference_joints=ref.joints if ref else None, order=sweep.file.sweep.order,
             isotropic=sweep.file.sweep.isotropic,
             coordinated=backend(rig.file.link.kind).for_file(rig.file).coordinated, alignment=rig.alignment,
-            on_stage=stage,
+            on_stage=stage, scan=_scan_timing(rig, sweep),
         )  # fmt: skip
+
+
+def _scan_timing(rig: RigConfig, sweep: SweepConfig) -> ScanTiming | None:
+    """How the plan times continuous scans (None: stop and go): the given speed, else the runner's rule with a
+    frame exposed as the estimate's stops are (a fixed exposure's longest, else first_exposure_s)."""
+    from rig.run.planning.scans import ScanTiming
+
+    cap = sweep.file.capture
+    if cap.motion != "continuous":
+        return None
+    exposure = max(cap.exposures_s) if cap.exposures_s else cap.first_exposure_s
+    return ScanTiming(cap.scan_speed_deg_s, exposure, cap.dark_frames, rig.file.camera.overhead_s)
 
 
 def _approach_s(rig: RigConfig) -> float:
@@ -245,16 +263,43 @@ def _run(
         return runner.run()
 
 
-def start_run(rig: RigConfig, sweep: SweepConfig, out: str | Path, *, progress: bool = True) -> RunSummary:
-    """Plan, create the run directory ``out`` and measure; raises RunStopped if it stops early."""
+def resolve_mode(rig: RigConfig, sweep: SweepConfig, plan: Plan) -> tuple[SweepConfig, ModeChoice | None]:
+    """The sweep with ``[capture] mode = "auto"`` decided (``rig.run.measuring.mode_choice``) and the choice;
+    any other sweep unchanged, with None."""
+    from rig.run.measuring.mode_choice import choose_image
+
+    cap = sweep.file.capture
+    if cap.mode != "auto":
+        return sweep, None
+    choice = choose_image(rig, plan, cap.tile_px, cap.motion)
+    # The decided table is what the manifest keeps: a resume measures the same way without deciding again.
+    keys = {"mode": choice.mode, "tile_px": cap.tile_px if choice.mode == "image" else None}
+    decided = sweep.file.model_copy(update={"capture": cap.model_copy(update=keys)})
+    return dataclasses.replace(sweep, file=decided), choice
+
+
+def start_run(
+    rig: RigConfig, sweep: SweepConfig, out: str | Path, *, progress: bool = True,
+    log: Callable[[str], None] | None = None,
+) -> RunSummary:  # fmt: skip
+    """Plan, create the run directory ``out`` and measure; raises RunStopped if it stops early.
+
+    ``log`` receives what the run decided before it starts (``mode = "auto"``'s choice).
+    """
     # Every input is read before the directory exists: a mistake found after would leave a run that is not
     # one, which a retry calls "already holds a run" and a resume fails on again.
     check_rig(rig)
-    capture = capture_settings(rig, sweep)
     plan = make_plan(rig, sweep, progress=progress)
     if not plan.points:
         raise ConfigError(f"{sweep.path}: no reachable point on this rig ({len(plan.skipped)} unreachable)")
-    with RunStore.create(out, manifest(rig, sweep, plan, options_for(rig, sweep, progress))) as store:
+    sweep, choice = resolve_mode(rig, sweep, plan)
+    capture = capture_settings(rig, sweep)
+    doc = manifest(rig, sweep, plan, options_for(rig, sweep, progress))
+    if choice is not None:
+        doc["capture_mode"] = {"asked": "auto", **choice.as_dict()}
+        if log is not None:
+            log(choice.describe())
+    with RunStore.create(out, doc) as store:
         return _run(store, rig, sweep, plan, progress, capture)
 
 

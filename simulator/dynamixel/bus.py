@@ -311,6 +311,12 @@ class VirtualDynamixelBus(Settling):
             if reply.fast_segment:
                 group += data
             self.stats.replies_sent += 1  # counted first: a client may check the count once the bytes arrive
+            if fate.split_s > 0:
+                half = len(data) // 2
+                self._write_all(data[:half])
+                if self._stop.wait(fate.split_s):
+                    return
+                data = data[half:]
             self._write_all(data)
 
     def _write_all(self, data: bytes) -> None:

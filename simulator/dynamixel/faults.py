@@ -29,6 +29,8 @@ class ReplyFate:
     drop: bool = False
     corrupt: bool = False
     delay_s: float = 0.0
+    #: Real seconds between the reply's first half and the rest (0: the whole reply at once).
+    split_s: float = 0.0
 
 
 @dataclass
@@ -48,6 +50,10 @@ class ServoFaults:
     reply_delay_s:
         Real seconds to wait before each reply: the one delay that must be real, because a client on the
         other end of the pseudo-terminal measures it with its own wall clock.
+    reply_split_s:
+        Real seconds between the first half of each reply and the rest, as a USB adapter's latency timer or a
+        loaded host delivers a reply in two pieces: a client whose window closes in between sees a partial
+        reply (the SDK's ``COMM_RX_CORRUPT``), whose rest then arrives late.
     stall_short_ticks:
         When set, moves started afterwards stop this many ticks short of their goal and never arrive:
         Moving (122) stays 1 and Moving Status (123) shows a following error, like a joint pushing
@@ -61,6 +67,7 @@ class ServoFaults:
     corrupt_replies: int = 0
     corrupt_probability: float = 0.0
     reply_delay_s: float = 0.0
+    reply_split_s: float = 0.0
     stall_short_ticks: int | None = None
     seed: int = 0
     _rng: random.Random = field(init=False, repr=False, compare=False)
@@ -80,6 +87,7 @@ class ServoFaults:
         self.corrupt_replies = 0
         self.corrupt_probability = 0.0
         self.reply_delay_s = 0.0
+        self.reply_split_s = 0.0
         self.stall_short_ticks = None
 
     def next_reply_fate(self) -> ReplyFate:
@@ -87,7 +95,8 @@ class ServoFaults:
         if self._strikes("drop_replies", self.drop_probability):
             return ReplyFate(drop=True)
         corrupt = self._strikes("corrupt_replies", self.corrupt_probability)
-        return ReplyFate(corrupt=corrupt, delay_s=max(0.0, float(self.reply_delay_s)))
+        return ReplyFate(corrupt=corrupt, delay_s=max(0.0, float(self.reply_delay_s)),
+                         split_s=max(0.0, float(self.reply_split_s)))
 
     def _strikes(self, counter: str, probability: float) -> bool:
         """Whether a fault strikes this reply: one of the ``counter`` attribute's next N (used up), else by chance."""

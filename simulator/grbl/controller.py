@@ -94,15 +94,32 @@ class VirtualGrbl(GrblCore):
 
     @property
     def physical_position(self) -> dict[str, float]:
-        """Where each axis physically stands (units, homed machine coordinates: the switch at 0), steps whole.
+        """Where each axis physically stands (units, homed machine coordinates: the switch at 0).
 
-        This is what the machine does, not what it reports: a power-up zeroes the report, never the axes.
+        This is what the machine does, not what it reports: a power-up zeroes the report, never the axes. At rest
+        an axis holds a whole step. While steps are issued (a move, a hold's deceleration, homing) it follows the
+        planned path itself: an arm's inertia on the rotor low-passes the step train far below the step rate, so
+        the load glides between the steps that the report (a count of steps issued) jumps by.
         """
         with self._lock:
             self._advance(self._clock.now())
+            stepping = self._stepping()
             steps = [self.settings.steps_per_unit(i) for i in range(len(self.axes))]
-            where = zip(self.axes, self._positions(), self._offset, steps, strict=True)
+            where = zip(self.axes, self._positions(quantise=False), self._offset, steps, strict=True)
+            if stepping:
+                return {a: p + o for a, p, o, _ in where}
             return {a: round((p + o) * n) / n for a, p, o, n in where}
+
+    @property
+    def stepping(self) -> bool:
+        """Whether steps are issued now: a move, homing, or a feed hold's or jog cancel's deceleration (``Hold:1``,
+        ``Door:2``), which the state's name alone (``Hold``) does not tell from a hold that has come to rest."""
+        with self._lock:
+            self._advance(self._clock.now())
+            return self._stepping()
+
+    def _stepping(self) -> bool:
+        return self._homing is not None or self._motion.mode in ("run", "hold")
 
     @property
     def driven_direction(self) -> dict[str, int]:

@@ -53,7 +53,8 @@ def test_adaptive_with_a_zenith_beyond_90_names_the_option_and_creates_nothing(
 @pytest.mark.parametrize(
     ("option", "value"),
     [("--budget", "0"), ("--initial", "500"), ("--batch", "0"), ("--snr", "-1"), ("--snr", "nan"),
-     ("--reference-snr", "0"), ("--seed", "-1"), ("--max-theta", "0")],
+     ("--reference-snr", "0"), ("--seed", "-1"), ("--max-theta", "0"), ("--tile-px", "0"), ("--tile-px", "600"),
+     ("--scan-speed", "0"), ("--scan-speed", "nan"), ("--scan-speed", "45")],
 )  # fmt: skip
 def test_adaptive_blames_each_bad_option_by_name(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], option: str, value: str
@@ -62,6 +63,44 @@ def test_adaptive_blames_each_bad_option_by_name(
     assert cli.main(["adaptive", option, value, "--out", str(out), "--quiet"]) == 2
     assert f"gonio: error: {option} {value}: expected" in capsys.readouterr().err
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [(["--mode", "frame"], "argument --mode: invalid choice: 'frame'"),
+     (["--motion", "scan"], "argument --motion: invalid choice: 'scan'"),
+     (["--tile-px", "four", "--mode", "image"], "argument --tile-px: invalid int value: 'four'"),
+     (["--tile-px", "4"], "--tile-px 4: has no meaning with --mode point"),
+     (["--scan-speed", "3"], "--scan-speed 3: has no meaning with --motion stop")],
+)  # fmt: skip
+def test_adaptive_mode_options_that_do_not_go_together_are_refused_by_name(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], options: list[str], message: str
+) -> None:
+    out = tmp_path / "sweep"
+    try:
+        code: int | str | None = cli.main(["adaptive", *options, "--out", str(out), "--quiet"])
+    except SystemExit as exc:  # argparse's own checks (a choice, a number) exit from parsing
+        code = exc.code
+    assert code == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_adaptive_mode_options_reach_the_sweep_s_settings(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    import rig.run.adaptive.sweep as adaptive
+
+    seen: list[tuple[object, ...]] = []
+
+    def stop(rig: object, out: object, spec: object, s: adaptive.AdaptiveSettings, **_: object) -> None:
+        seen.append((s.mode, s.tile_px, s.motion, s.scan_speed_deg_s))
+        raise KeyboardInterrupt  # the settings are all this test wants: nothing is measured (exit 130)
+
+    monkeypatch.setattr(adaptive, "run_adaptive", stop)
+    argv = ["adaptive", "--out", str(tmp_path / "a"), "--mode", "auto", "--tile-px", "4", "--motion", "continuous",
+            "--scan-speed", "3.5", "--quiet"]  # fmt: skip
+    assert cli.main(argv) == 130
+    assert cli.main(["adaptive", "--out", str(tmp_path / "b"), "--quiet"]) == 130
+    assert seen == [("auto", 4, "continuous", 3.5), ("point", None, "stop", None)]
 
 
 def test_adaptive_with_a_bad_camera_input_creates_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -45,11 +45,13 @@ MISALIGNED = {"light_zero_deg": 0.5, "camera_zero_deg": -0.3, "tilt_zero_deg": 0
 
 
 def small_rig(link: str, tmp: Path) -> Path:
-    """The shipped hardware rig file of ``link`` with the small sensor's ROI and a reference every 3 points."""
+    """The shipped hardware rig file of ``link``: the small sensor's ROI, a reference every 3 points, quick polls."""
     from tests.rehearsal.harness import set_keys
 
     path = tmp / f"shipped_{link}.toml"
-    path.write_text(set_keys(SHIPPED[link].read_text(), {"roi": SMALL_ROI, "every": "3"}))
+    text = set_keys(SHIPPED[link].read_text(), {"roi": SMALL_ROI, "every": "3"})
+    # As docs/hardware.md says a rehearsal's controller may: the rehearsal renames each frame in whole.
+    path.write_text(text.replace("[camera]\n", "[camera]\nstable_polls = 1\npoll_interval_s = 0.02\n", 1))
     return path
 
 

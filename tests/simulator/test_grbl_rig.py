@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -123,3 +125,45 @@ def test_the_runtime_guard_plans_a_move_from_where_the_arms_really_are() -> None
         for reported, physical in seen:  # every read-back the guard used is where the machine is
             assert reported["light"] == pytest.approx(physical.light, abs=0.12)
             assert reported["camera"] == pytest.approx(physical.camera, abs=0.12)
+
+
+def test_a_frame_taken_while_a_feed_hold_slows_the_arm_is_blurred_along_the_motion() -> None:
+    # GRBL reports a hold still slowing down as Hold:1 and one at rest as Hold:0: the camera must see the first
+    # as motion (its sub-exposures rendered where the arm glides), the second as a pose at rest.
+    rig = SimulatedGrblRig(SimRigSpec(seed=2))
+    with rig, rig.open_link() as link:
+        assert rig.camera is not None
+        pose = require(inverse(rig.spec.geometry, 30.0, 0.0, 60.0, 180.0)).as_dict()
+        start = {k: float(v) for k, v in pose.items()}
+        link.move_to(start)  # homes first
+        link.wait_in_position(timeout_s=60.0)
+        renders: list[tuple[float, float]] = []
+        inner = rig._radiance
+
+        def recorded(*args: object, **kwargs: object) -> np.ndarray:
+            renders.append((rig.clock.now(), float(rig.joints_now().as_dict()["camera"])))
+            return inner(*args, **kwargs)  # type: ignore[arg-type]
+
+        rig._radiance = recorded  # type: ignore[method-assign]
+        rig.camera.set_exposure(0.02)
+        link.move_to({**start, "camera": start["camera"] - 60.0})
+        axis = next(a for a in rig.axes if a.name == "camera")
+        rig.clock.sleep(2.0 * axis.max_speed_deg_s / axis.max_accel_deg_s2)  # well into the cruise
+        link.feed_hold()
+        link.status()  # answered in order after the hold: the deceleration has begun
+        assert rig.controller.state == "Hold:1"
+        assert rig.moving()
+        renders.clear()
+        rig.camera.capture()
+        assert rig.controller.state == "Hold:1"  # the frame ended before the arm came to rest
+        angles = [j for _, j in renders]
+        assert len(angles) >= 4 and all(b < a for a, b in itertools.pairwise(angles)), angles
+        steps = np.diff(angles[-4:])  # the sub-exposures', evenly spaced in time
+        assert abs(steps[-1]) < abs(steps[0])  # slowing down along the frame
+        rig.clock.sleep(axis.max_speed_deg_s / axis.max_accel_deg_s2)  # time enough to stop from full speed
+        assert rig.controller.state == "Hold:0" and not rig.moving()
+        renders.clear()
+        rig.camera.capture()
+        assert len(renders) == 1  # at rest: one render, no blur
+        link.resume()
+        link.wait_in_position(timeout_s=60.0)

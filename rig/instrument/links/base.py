@@ -65,3 +65,8 @@ class ScanLink(Protocol):
         """Cap the named axes' speed (deg/s of joint) for the moves that follow (None: back to each axis's top
         speed); the speeds the device actually runs at, after its own quantisation."""
         ...
+
+    def stops_at(self, pose: Pose) -> dict[str, float]:
+        """The joint angles (deg) the named axes come to rest at when sent ``pose`` (deg): each target rounded to
+        the device's whole counts or steps, which may fall short of it."""
+        ...

@@ -203,6 +203,10 @@ class DynamixelLink:
             out[name] = units * table.velocity_unit_rpm * 6.0 / axis.gear_ratio
         return out
 
+    def stops_at(self, pose: Pose) -> dict[str, float]:
+        """The joint angles (deg) the servos settle at for ``pose`` (deg): each Goal Position a whole count."""
+        return {n: self.axes[n].to_degrees(round(self.axes[n].to_units(float(deg)))) for n, deg in pose.items()}
+
     # -- motion -------------------------------------------------------------------------------------
 
     def move_to(self, pose: Pose) -> None:

@@ -322,6 +322,7 @@ class DynamixelBus:
             # Failed attempts per servo that failed them (-1: the one servo of a unicast): a servo silent again and
             # again is gone or slow, while a lossy bus spreads its losses over the servos of a group read.
             silent: dict[int, int] = {}
+            lost_here, heard = 0, False  # losses this transaction counted; whether any byte came back
             allowed = self._silences_allowed()
             widest = self._widest_scale()
             try:
@@ -345,23 +346,33 @@ class DynamixelBus:
                         return value, error
                     attempt += 1
                     silent[self._failed_id] = silent.get(self._failed_id, 0) + 1
-                    # A late or corrupt reply may still be arriving; drop it so the retry starts clean.
-                    late = self._drain() > 0 and result == sdk.COMM_RX_TIMEOUT
+                    # A late or corrupt reply may still be arriving; drop it so the retry starts clean. A reply cut
+                    # off by the window (the SDK calls a partial one corrupt) whose rest arrives now is late too: a
+                    # loaded host or an adapter's latency timer delivers a reply in pieces.
+                    drained = self._drain()
+                    late = drained > 0 and result in (sdk.COMM_RX_TIMEOUT, sdk.COMM_RX_CORRUPT)
                     if patient and replies:
                         self._count_failure(what, late)
+                        lost_here += 0 if late else 1
+                    heard = heard or drained > 0 or result != sdk.COMM_RX_TIMEOUT
                     worst = max(silent.values())
                     waited = self._now() - started
                     # Past the retries, only a window that can still widen is worth waiting on (a slow host).
-                    slow = (patient and result == sdk.COMM_RX_TIMEOUT and waited < self.reply_patience_s
+                    slow = (patient and (result == sdk.COMM_RX_TIMEOUT or late) and waited < self.reply_patience_s
                             and scale < widest)  # fmt: skip
                     if result not in _RETRYABLE or (worst > allowed and not slow):
-                        raise CommunicationError(
+                        failure = CommunicationError(
                             f"{self.port_name} at {self.baudrate} baud: {what}: {self._ph.getTxRxResult(result)} "
                             f"(after {attempt} attempt{'s' if attempt > 1 else ''} in {waited:.2f} s; "
                             f"{self._loss_text()}; check baud rate, id and wiring)"
                         )
+                        if not heard and set(silent) == {-1}:
+                            # One servo that never made a sound is absent, not a sign of a lossy bus: left in the
+                            # loss count, each absent id pinged would make the bus retry the next one longer.
+                            self._forget_losses(lost_here)
+                        raise failure
                     self.comm_retries_used += 1
-                    if result == sdk.COMM_RX_TIMEOUT:
+                    if result == sdk.COMM_RX_TIMEOUT or late:
                         # This transaction only, and by how often the same servo was silent: a slow or dead servo
                         # gets ever longer windows, losses spread over a group's servos hardly any.
                         scale = min(max(self.window_scale, kept * 2.0 ** min(worst, 64)), widest)
@@ -409,6 +420,12 @@ class DynamixelBus:
                 f"{self.port_name} at {self.baudrate} baud: {what}: {self._loss_text()}, more than {LOSS_LIMIT:.0%}: "
                 "the bus is too lossy to measure on; check the cable, its termination and the baud rate"
             )
+
+    def _forget_losses(self, n: int) -> None:
+        """Take the last ``n`` counted losses back (they were this transaction's: the lock is held)."""
+        for _ in range(min(n, len(self._losses))):
+            self._losses.pop()
+        self.replies_lost -= n
 
     @property
     def loss_rate(self) -> float:

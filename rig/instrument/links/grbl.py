@@ -311,6 +311,12 @@ class GrblLink:
         self._speed_caps = {n: float(v) for n, v in (speeds_deg_s or {}).items()}
         return {n: min(v, self.axes[n].max_speed_deg_s) for n, v in self._speed_caps.items()}
 
+    def stops_at(self, pose: Pose) -> dict[str, float]:
+        """The joint angles (deg) the axes stop at for ``pose`` (deg): GRBL rounds each G-code target to whole steps."""
+        coords = self._coords_for(pose)
+        steps = {n: round(float(format_number(c)) * self.axes[n].units_per_degree) for n, c in coords.items()}
+        return {n: self.axes[n].to_degrees(s) for n, s in steps.items()}
+
     def ensure_position_known(self) -> None:
         """Home unless GRBL's position is known since the last reset, alarm or reconnect; refuse without homing.
 

@@ -369,35 +369,44 @@ class Capture(Strict):
     save_images: bool = False
     include_cosine: bool = False
     #: "point": each point one reading of the camera's ROI; "image": every tile_px x tile_px tile of the
-    #: sample's whole footprint a sample of its own (rig.run.measuring.image_capture).
-    mode: Literal["point", "image"] = "point"
-    #: Image mode's tile side in pixels (None: rig.run.measuring.tiles.DEFAULT_TILE_PX).
+    #: sample's whole footprint a sample of its own (rig.run.measuring.image_capture); "auto": image where the
+    #: camera resolves the sample into enough tiles, else point (rig.run.measuring.mode_choice), decided when
+    #: the run starts and written in its manifest.
+    mode: Literal["point", "image", "auto"] = "point"
+    #: Image mode's tile side in pixels (None: rig.run.measuring.tiles.DEFAULT_TILE_PX); also what "auto" counts in.
     tile_px: Annotated[int, Field(ge=1, le=512)] | None = None
     #: "stop": stop and go, every point measured at rest; "continuous": runs of points that differ in one joint are
-    #: scanned at constant speed while the camera takes one frame per point (rig.run.measuring.scan).
+    #: scanned at constant speed while the camera takes one frame per point (rig.run.measuring.scan); in image mode
+    #: each frame's tiles are samples, each with the blur along its own directions.
     motion: Literal["stop", "continuous"] = "stop"
-    #: The scanning joint's constant speed (deg/s of joint) in continuous motion; None: DEFAULT_SCAN_SPEED_DEG_S.
-    #: Bounded well below any axis's top speed: a frame blurs over speed x exposure.
+    #: The scanning joint's constant speed (deg/s of joint) in continuous motion, kept as given (up to the axis's
+    #: max_speed_deg_s); left out: chosen per scan run, the fastest that the axis's max_speed_deg_s allows, that keeps
+    #: each frame's blur (speed x exposure) within half the run's smallest step with room for the exposure to
+    #: double, and that gives the camera time for each frame and its darks; a run that stopping at each point would
+    #: measure sooner is then measured at rest (rig.run.planning.scans).
     scan_speed_deg_s: Annotated[float, Field(gt=0, le=30, allow_inf_nan=False)] | None = None
+    #: A fitted model that predicts every point's level before it is measured, so its exposure is planned ahead:
+    #: ``gonio analyze``'s fit.json or export/material.json (rig.run.measuring.exposure_sources). Exposures only.
+    exposure_model: Annotated[str, Field(min_length=1)] | None = None
+    #: An earlier run (its directory or its samples.csv) whose nearest measured direction pair predicts each
+    #: point's level (a coarse first pass); with exposure_model too, the pass is asked first.
+    exposure_from: Annotated[str, Field(min_length=1)] | None = None
 
     @model_validator(mode="after")
     def _tiles_in_image_mode(self) -> Capture:
-        if self.tile_px is not None and self.mode != "image":
+        for key in ("exposure_model", "exposure_from"):
+            if getattr(self, key) is not None and self.exposures_s is not None:
+                raise ValueError(f"{key} = {getattr(self, key)!r} has no meaning with a fixed exposures_s "
+                                 "(nothing is planned): leave out exposures_s to plan exposures ahead, or leave "
+                                 f"out {key}")  # fmt: skip
+        if self.tile_px is not None and self.mode == "point":
             raise ValueError(f"tile_px = {self.tile_px} has no meaning in point mode (each point reads the camera's "
                              'ROI): set mode = "image" to read the sample in tiles, or leave tile_px out')  # fmt: skip
         if self.scan_speed_deg_s is not None and self.motion != "continuous":
             raise ValueError(f"scan_speed_deg_s = {self.scan_speed_deg_s:g} has no meaning with motion = "
                              f'"{self.motion}" (every point is measured at rest): set motion = "continuous" or '
                              "leave scan_speed_deg_s out")  # fmt: skip
-        if self.motion == "continuous" and self.mode == "image":
-            raise ValueError('motion = "continuous" with mode = "image": continuous scans read the ROI only (point '
-                             'mode) so far; use mode = "point" or motion = "stop"')  # fmt: skip
         return self
-
-
-#: The scanning joint's speed (deg/s) when a continuous sweep leaves scan_speed_deg_s out: slow enough that a
-#: 10 ms frame blurs by 0.02 deg, far inside a sweep's usual 1-5 deg step.
-DEFAULT_SCAN_SPEED_DEG_S = 2.0
 
 
 class SweepFile(Strict):

@@ -34,8 +34,8 @@ from acquisition.roi import RoiReading, channel_list, reduce_roi
 from model.errors import InputError
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics_types import RigPose
-from rig.run.measuring.measure import CaptureSettings, Reading
-from rig.run.measuring.tiles import Box, TileGeometry, tile_geometry
+from rig.run.measuring.measure import CaptureSettings, Level, Reading, level_of
+from rig.run.measuring.tiles import Box, TileGeometry, tile_geometry, tiles_within
 
 #: The columns of a point record's ``tiles`` table (each a list, one entry per tile).
 TILE_KEYS = ("tile", "theta_i_deg", "phi_i_deg", "theta_o_deg", "phi_o_deg", "light_distance_m", "reading",
@@ -110,21 +110,25 @@ class ImageShot:
     """One point's image capture: its tiles, the windowed camera, and the settings the reading is taken with."""
 
     tiles: TileGeometry
-    camera: Camera
+    camera: WindowCamera
     capture: CaptureSettings
     #: Sensor pixel of the window's (0, 0) (even, so a mosaic keeps its colour phase).
     origin_xy: tuple[int, int]
 
+    def frame_boxes(self) -> list[Box]:
+        """Each tile's pixel box in the frames read (the window's coordinates)."""
+        wx, wy = self.tiles.window[0] - self.origin_xy[0], self.tiles.window[1] - self.origin_xy[1]
+        return [(b[0] + wx, b[1] + wy, b[2] + wx, b[3] + wy) for b in self.tiles.boxes]
+
     def record(self, reading: Reading) -> dict[str, Any]:
         """The journal's ``tiles`` table (``TILE_KEYS``) of this reading, and the count left out at grazing."""
         hdr = reading.hdr
-        ox, oy = self.origin_xy
-        wx, wy = self.tiles.window[0] - ox, self.tiles.window[1] - oy
+        boxes = self.frame_boxes()
         raw = hdr.metadata.get("kind") == "raw" and isinstance(hdr.metadata.get("cfa_pattern"), str)
-        if raw and any((b[0] + wx) % 2 or (b[1] + wy) % 2 or (b[2] - b[0]) % 2 for b in self.tiles.boxes):
+        if raw and any(b[0] % 2 or b[1] % 2 or (b[2] - b[0]) % 2 for b in boxes):
             raise ImageModeError("image mode on a raw (mosaic) camera needs an even tile_px: a tile must hold "
                                  "whole 2x2 colour cells")  # fmt: skip
-        readings = [tile_reading(hdr, (b[0] + wx, b[1] + wy, b[2] + wx, b[3] + wy)) for b in self.tiles.boxes]
+        readings = [tile_reading(hdr, b) for b in boxes]
         t = self.tiles
         columns: dict[str, Any] = {
             "tile": t.tile.tolist(),
@@ -141,6 +145,17 @@ class ImageShot:
         }  # fmt: skip
         return {"tiles": columns, "tile_px": self.tile_px, "tiles_grazing": t.grazing}
 
+    def brightest_level(self, reading: Reading) -> Level:
+        """The level (counts/s) of the tile holding the brightest pixel: a scan plans its next frame from it."""
+        levels = [level_of(reading.hdr, b) for b in self.frame_boxes()]
+        return max(levels, key=lambda lv: lv.peak) if levels else reading.level
+
+    def seen_from(self, geometry: RigGeometry, pose: RigPose) -> ImageShot:
+        """The same frames' tiles seen from ``pose`` (a scan's mid-exposure): those lying in the window read."""
+        assert self.capture.image is not None
+        tiles = tile_geometry(geometry, pose, self.capture.image)
+        return dataclasses.replace(self, tiles=tiles_within(tiles, self.camera.window))
+
     @property
     def tile_px(self) -> int:
         """The tile side in pixels."""
@@ -152,8 +167,12 @@ def _rounded(a: np.ndarray) -> list[float]:
     return [float(v) + 0.0 for v in np.round(np.asarray(a, dtype=np.float64), 9)]
 
 
-def plan_shot(camera: Camera, capture: CaptureSettings, geometry: RigGeometry, pose: RigPose) -> ImageShot | None:
-    """The image capture of the pose ``pose`` (the calibrated rig's), or None where no tile sees the sample."""
+def plan_shot(camera: Camera, capture: CaptureSettings, geometry: RigGeometry, pose: RigPose,
+              margin_px: int = 0) -> ImageShot | None:  # fmt: skip
+    """The image capture of the pose ``pose`` (the calibrated rig's), or None where no tile sees the sample.
+
+    ``margin_px``: pixels read beyond the tiles on every side (a scan's frame is seen from a pose near ``pose``).
+    """
     image = capture.image
     if image is None:
         raise ValueError("plan_shot needs CaptureSettings.image (image mode)")
@@ -162,6 +181,7 @@ def plan_shot(camera: Camera, capture: CaptureSettings, geometry: RigGeometry, p
         return None
     x0, y0, x1, y1 = tiles.window
     w, h = image.resolution
+    x0, y0, x1, y1 = max(x0 - margin_px, 0), max(y0 - margin_px, 0), x1 + margin_px, y1 + margin_px
     window = (x0 - x0 % 2, y0 - y0 % 2, min(x1 + x1 % 2, w), min(y1 + y1 % 2, h))
     # The goal is each tile's: a tile at the window's mean level has 1/n of its pixels, 1/sqrt(n) of its SNR.
     n = (window[2] - window[0]) * (window[3] - window[1]) / image.tile_px**2

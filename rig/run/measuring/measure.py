@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -32,6 +32,9 @@ from acquisition.hdr.merge import HdrImage, merge_linear
 from acquisition.noise import SensorNoise
 from acquisition.roi import RoiError, RoiReading
 from rig.run.measuring.tiles import ImageSettings
+
+if TYPE_CHECKING:
+    from rig.run.measuring.exposure_sources import LevelSource
 
 Box = tuple[int, int, int, int]
 
@@ -52,8 +55,19 @@ class CaptureSettings:
     flat_field: FlatField | None = None
     #: Image mode (``[capture] mode = "image"``): every k x k tile on the sample a reading; None: point mode.
     image: ImageSettings | None = None
-    #: Continuous motion (``[capture] motion = "continuous"``): the scanning joint's speed in deg/s; None: stop and go.
+    #: ``[capture] motion``: "continuous", runs of points scanned moving (``rig.run.measuring.scan``); "stop": at rest.
+    motion: Literal["stop", "continuous"] = "stop"
+    #: Continuous motion's speed of the scanning joint in deg/s, as the sweep gives it; None: chosen per scan run,
+    #: the fastest the axis, the blur and the camera allow (``rig.run.planning.scans.chosen_speed_deg_s``).
     scan_speed_deg_s: float | None = None
+    #: What predicts each point's level before it is measured (``[capture] exposure_from``, ``exposure_model``), in
+    #: the order asked (rig.run.measuring.exposure_ahead); (): the previous point's level plans the next.
+    exposure_sources: tuple[LevelSource, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.scan_speed_deg_s is not None and self.motion != "continuous":
+            raise ValueError(f"CaptureSettings: scan_speed_deg_s = {self.scan_speed_deg_s!r} with motion = "
+                             f"{self.motion!r}; expected motion = 'continuous' (a speed means nothing at rest)")
 
 
 #: A reading whose dimmest channel reaches less than this fraction of the SNR goal is topped up.

@@ -45,7 +45,7 @@ from rig.instrument.alignment import Alignment, aligned_forward, aligned_pose, l
 from rig.instrument.axis import Axis
 from rig.instrument.calibration_file import GeometryCalibration
 from rig.instrument.clock import Clock
-from rig.instrument.direction_uncertainty import direction_covariances
+from rig.instrument.direction_uncertainty import direction_covariances, travel_variance_deg2
 from rig.instrument.geometry import RigGeometry
 from rig.instrument.kinematics import Joints
 from rig.instrument.kinematics_types import Directions
@@ -53,6 +53,7 @@ from rig.instrument.links.base import HomingLink, LinkError, MotionLink, MoveTim
 from rig.run.backends.bounded_camera import BoundedCamera
 from rig.run.backends.reference import ReferenceTarget
 from rig.run.measuring.backlash import SIDES, Backlash
+from rig.run.measuring.exposure_ahead import ExposureAhead, target_of
 from rig.run.measuring.image_capture import TILE_KEYS, plan_shot, whole_frames
 from rig.run.measuring.measure import CaptureSettings, Level, Reading, take_reading
 from rig.run.measuring.motion_guard import MotionGuard, UnsafeMove
@@ -177,6 +178,8 @@ class Runner:
         self.alignment = calibration.alignment if calibration is not None else Alignment()
         #: Encoder resolution per joint (deg): a count's uniform error, variance count^2 / 12.
         self._resolution = {a.name: 1.0 / a.units_per_joint_degree for a in axes}
+        #: The axes by joint: a scan's chosen speed stays within their top speed, its last frame ends before they slow.
+        self.axes_by_name = {a.name: a for a in axes}
         allowed = [p.joints for p in plan.points] + [v for p in plan.points for v in p.via]
         if reference is not None:
             allowed.append(reference.joints)
@@ -192,6 +195,9 @@ class Runner:
         #: Wall seconds the kernel warm-up took before the first point (0 if nothing was left to measure).
         self.warm_up_s = 0.0
         self._wall = wall_clock
+        #: Levels predicted ahead (``[capture] exposure_model`` / ``exposure_from``); None: the previous level plans.
+        self.ahead = ExposureAhead(capture.exposure_sources) if capture.exposure_sources else None
+        self._planned_from: dict[int, str] = {}  # per point index, what planned its exposure (for its record)
 
     # -- run time -------------------------------------------------------------------------------------
     def now(self) -> float:
@@ -247,6 +253,8 @@ class Runner:
         ref_done = {r["slot"]: r for r in records if r["kind"] == "reference"}
         points = [r for r in records if r["kind"] == "point"]
         level = Level.from_dict(max(points, key=lambda r: r["position"])["level"]) if points else None
+        if self.ahead is not None:  # what the sources learnt from the points measured so far
+            self.ahead.replay(points)
         # The plan holds the reference schedule, so its time estimate and the run agree on it.
         slots = set(self.plan.reference_before) if self.reference else set()
         last_ref = max(ref_done.values(), key=lambda r: r["slot"]) if ref_done else None
@@ -268,19 +276,20 @@ class Runner:
                 self._return_to_last_pose(records)
             self._continue_time(records)
             self.eta.start(len(self.plan.points) - len(done))
-            speed = self.capture.scan_speed_deg_s
-            scan = Scanner(self, speed) if speed is not None else None
+            scan = Scanner(self, self.capture.scan_speed_deg_s) if self.capture.motion == "continuous" else None
             swept: set[int] = set()  # indices a scan measured in this call
             for pos, point in enumerate(self.plan.points):
                 if pos in slots and pos not in ref_done and point.index not in done:
                     last_ref = self._reference(pos, last_ref)
                 if point.index in done or point.index in swept:
                     continue
-                reading = self._point(pos, point, level)
+                reading, plan_level = self._point(pos, point, self.planned_level(point, level))
+                self.observed(point, reading)
                 level, scanned = reading.level, [pos]
                 if scan is not None:  # continuous motion: the points a scan from here reaches, measured moving
-                    level, more = scan.follow(pos, level, done, slots)
+                    level, more = scan.follow(pos, level, done, slots, plan_level)
                     swept.update(self.plan.points[p].index for p in more)
+                    self._measured += len(more)  # each a point record, as a stop's is
                     scanned += more
                 for _ in scanned:
                     self.eta.point_done()
@@ -400,11 +409,16 @@ class Runner:
         raise AssertionError("unreachable")
 
     # -- one point, one reference ---------------------------------------------------------------------
-    def _point(self, pos: int, point: PlannedPoint, level: Level | None) -> Reading:
+    def _point(self, pos: int, point: PlannedPoint, level: Level | None) -> tuple[Reading, Level]:
+        """Measure ``point`` at rest: its reading, and the level a scan from it plans its first frame from."""
         actual = self._move(point.joints, point.via)
         d = aligned_forward(self.geometry, actual, self.alignment)
         t0 = self.now()
-        reading, tiles = self._read_image(actual, level) if self.capture.image else (self._read(level), {})
+        if self.capture.image:
+            reading, tiles, plan_level = self._read_image(actual, level)
+        else:
+            reading = self._read(level)
+            tiles, plan_level = {}, reading.level
         t1 = self.now()
         fault: LinkError | None = None
         try:  # where the axes stood at the end: how far they moved during the frames
@@ -423,37 +437,64 @@ class Runner:
         self._measured += 1
         if fault is not None:
             raise fault
-        return reading
+        return reading, plan_level
 
-    def _read_image(self, actual: Joints, level: Level | None) -> tuple[Reading, dict[str, Any]]:
-        """Image mode's reading of the whole footprint and its tiles' journal table (``image_capture``)."""
+    def _read_image(self, actual: Joints, level: Level | None) -> tuple[Reading, dict[str, Any], Level]:
+        """Image mode's reading of the whole footprint, its tiles' journal table (``image_capture``), and the
+        level of its brightest tile (a scan's first frame is planned from it)."""
         image = self.capture.image
         assert image is not None
         shot = plan_shot(self.camera, self.capture, self.geometry, aligned_pose(self.geometry, actual, self.alignment))
         if shot is None:  # no whole tile on the sample (a grazing view): the point's ROI, and no samples
             reading = self._read(level, dataclasses.replace(self.capture, image=None))
-            return reading, {"tiles": {k: [] for k in TILE_KEYS}, "tile_px": image.tile_px, "tiles_grazing": 0}
+            empty = {"tiles": {k: [] for k in TILE_KEYS}, "tile_px": image.tile_px, "tiles_grazing": 0}
+            return reading, empty, reading.level
         with whole_frames(self.camera):
             reading = self._read(level, shot.capture, shot.camera)
-        return reading, shot.record(reading)
+        scanning = self.capture.motion == "continuous"  # only a scan plans from it
+        return reading, shot.record(reading), shot.brightest_level(reading) if scanning else reading.level
 
     def point_head(self, point: PlannedPoint, pos: int, d: Directions, joints: Joints) -> dict[str, Any]:
-        """A point record's first fields: its index, target and measured directions (deg), joints (deg)."""
-        return {
+        """A point record's first fields: its index, target and measured directions (deg), joints (deg), and what
+        planned its exposure where the run predicts levels ahead."""
+        head = {
             "kind": "point", "index": point.index, "position": pos,
             "target_deg": [_f(v) for v in point.directions_deg],
             "theta_i_deg": _f(float(d.theta_i)), "phi_i_deg": _f(float(d.phi_i)),
             "theta_o_deg": _f(float(d.theta_o)), "phi_o_deg": _f(float(d.phi_o)),
             "joints_deg": {k: _f(float(v)) for k, v in joints.as_dict().items()},
         }  # fmt: skip
+        if point.index in self._planned_from:
+            head["exposure_planned_from"] = self._planned_from.pop(point.index)
+        return head
+
+    # -- exposure planned ahead (rig.run.measuring.exposure_ahead) -------------------------------------
+    def planned_level(self, point: PlannedPoint, previous: Level | None) -> Level | None:
+        """The level (counts/s) to plan ``point``'s exposure from: predicted ahead where a source can, else
+        ``previous``; what gave it goes into the point's record."""
+        if self.ahead is None:
+            return previous
+        level, source = self.ahead.plan(_target(point), previous)
+        self._planned_from[point.index] = source
+        return level
+
+    def observed(self, point: PlannedPoint, reading: Reading) -> None:
+        """Teach the sources ``point``'s measured level; a prediction off by more than OFF_FACTOR is an event."""
+        if self.ahead is None:
+            return
+        usable = not reading.roi.lower_bound and not reading.roi.dark
+        for miss in self.ahead.observe(_target(point), reading.level, usable):
+            self._event("exposure_prediction_off", f"point {point.index}: the {miss.source}'s level was off by "
+                        f"x{miss.factor:.3g} (predicted {_rounded(miss.predicted)}, measured {_rounded(miss.measured)} "
+                        f"counts/s); the next point falls back", index=point.index, source=miss.source,
+                        factor=miss.factor)  # fmt: skip
 
     def _uncertainty(self, before: Joints, after: Mapping[str, float], measured: Directions) -> dict[str, Any]:
         """The directions' covariances (rig.instrument.direction_uncertainty) for the journal."""
-        variance = {}
-        for name, value in before.as_dict().items():
-            moved = float(after.get(name, value)) - float(value)
-            variance[name] = (self._resolution.get(name, 0.0) ** 2 / 12.0 + moved * moved / 12.0
-                              + self.backlash.variance_deg2(name, self._sides))  # fmt: skip
+        travel = travel_variance_deg2(before.as_dict(), after)
+        variance = {name: (self._resolution.get(name, 0.0) ** 2 / 12.0 + moved
+                           + self.backlash.variance_deg2(name, self._sides))
+                    for name, moved in travel.items()}  # fmt: skip
         cal = self.calibration
         angles, tangent = direction_covariances(
             self.geometry, before, self.alignment, variance, cal.names if cal else (),
@@ -560,6 +601,16 @@ class Runner:
             self.link.shutdown(keep_torque=self.options.on_stop == "hold")
         except LinkError as exc:
             print(f"gonio: warning: {exc}", file=sys.stderr)
+
+
+def _target(point: PlannedPoint) -> tuple[float, float, float, float]:
+    """The point's target directions (deg) as its record holds them: a resume replays the journal's
+    (ExposureAhead.replay), and must see the very numbers the run planned with."""
+    return target_of({"target_deg": [_f(v) for v in point.directions_deg]})
+
+
+def _rounded(values: Sequence[float]) -> str:
+    return "[" + ", ".join(f"{v:.4g}" for v in values) + "]"
 
 
 class _CameraFailed(CameraFault, RuntimeError):

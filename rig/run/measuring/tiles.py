@@ -13,22 +13,31 @@ components (wi_x, wi_y, wo_x, wo_y) that ``model.fit.angular`` reads. The readin
 spread, so where the BRDF curves within a tile (a highlight crossing it) the spread is the error the
 directions carry.
 
+A frame taken while a joint moves (a continuous scan) sees each tile's directions sweep along the motion: uniform
+motion over the exposure is a spread too, the joint's travel^2 / 12 carried to each tile's own directions by their
+slope in that joint (``motion_covariance``, through ``rig.instrument.direction_uncertainty`` as a pose's are), and
+added to the tile's footprint covariance.
+
 Tiles lie on a grid fixed to the sensor (tile (col, row) covers pixels [col k, (col + 1) k) x [row k, ...)),
 so a tile's number (``row * columns + col``) names the same pixels at every pose.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 
 from model.geometry import degrees_to_vector
+from rig.instrument.alignment import Alignment, aligned_pose
 from rig.instrument.camera_model import CameraView, aimed_camera, focal_length_px
+from rig.instrument.direction_uncertainty import direction_covariances
 from rig.instrument.geometry import RigGeometry
-from rig.instrument.kinematics_types import RigPose
+from rig.instrument.kinematics_types import Joints, RigPose
 from rig.instrument.sample_surface import SampleShape, local_angles, surface_hits
 
 FloatArray = npt.NDArray[np.float64]
@@ -161,6 +170,68 @@ def tile_geometry(geometry: RigGeometry, pose: RigPose, image: ImageSettings) ->
     )  # fmt: skip
 
 
+def tile_directions(geometry: RigGeometry, pose: RigPose, image: ImageSettings,
+                    tiles: TileGeometry) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+    """The mean angles (T, 4) in deg and tangent components (T, 4) of ``tiles``' pixels seen from ``pose``."""
+    if tiles.count == 0:
+        return np.zeros((0, 4)), np.zeros((0, 4))
+    k, s = image.tile_px, SUBPIXELS
+    x0, y0, x1, y1 = tiles.window
+    view = camera_of(geometry, pose, image.resolution)
+    gx, gy = _grid(x0, y0, x1, y1, s)
+    hits = surface_hits(image.shape, geometry, pose, view.origin, view.ray(gx, gy).reshape(-1, 3))
+    ang = local_angles(hits, np.asarray(pose.light_position_m, dtype=np.float64), view.origin)
+    nr, nc, side = (y1 - y0) // k, (x1 - x0) // k, k * s
+    rows = np.array([b[1] // k for b in tiles.boxes])
+    cols = np.array([b[0] // k for b in tiles.boxes])
+
+    def per_tile(a: npt.ArrayLike) -> FloatArray:
+        """(T, side * side) of a per-ray array, for the tiles asked about."""
+        grid = np.asarray(a, dtype=np.float64).reshape(nr, side, nc, side).transpose(0, 2, 1, 3)
+        return grid.reshape(nr, nc, side * side)[rows, cols]
+
+    # A ray the motion takes off the sample has no direction on it: the tile's mean is over the rest.
+    on = per_tile(hits.hit)[..., None]
+    wi = degrees_to_vector(per_tile(ang.theta_i_deg), per_tile(ang.phi_i_deg))
+    wo = degrees_to_vector(per_tile(ang.theta_o_deg), per_tile(ang.phi_o_deg))
+    mean_wi, mean_wo = _unit_rows((wi * on).sum(axis=1)), _unit_rows((wo * on).sum(axis=1))
+    angles = np.concatenate([_degrees_rows(mean_wi), _degrees_rows(mean_wo)], axis=-1)
+    return angles, np.concatenate([mean_wi[:, :2], mean_wo[:, :2]], axis=-1)
+
+
+def motion_covariance(
+    geometry: RigGeometry, joints: Joints, alignment: Alignment, image: ImageSettings, tiles: TileGeometry,
+    variance_deg2: Mapping[str, float],
+) -> tuple[FloatArray, FloatArray]:
+    """Each tile's (angle (T, 4, 4) deg^2, tangent (T, 4, 4)) covariance from the joints' variances (deg^2)."""
+
+    def features(j: Joints, a: Alignment) -> tuple[FloatArray, FloatArray]:
+        return tile_directions(geometry, aligned_pose(geometry, j, a), image, tiles)
+
+    return direction_covariances(geometry, joints, alignment, variance_deg2, features=features)
+
+
+def with_spread(tiles: TileGeometry, angle_cov_deg2: FloatArray, direction_cov: FloatArray) -> TileGeometry:
+    """``tiles`` with more spread (T, 4, 4) added to each tile's covariances (deg^2; tangent components)."""
+    return dataclasses.replace(tiles, angle_cov_deg2=tiles.angle_cov_deg2 + angle_cov_deg2,
+                               direction_cov=tiles.direction_cov + direction_cov)  # fmt: skip
+
+
+def tiles_within(tiles: TileGeometry, window: Box) -> TileGeometry:
+    """The tiles whose pixels all lie in the sensor ``window`` (x0, y0, x1, y1), the others left out."""
+    x0, y0, x1, y1 = window
+    ox, oy = tiles.window[:2]
+    keep = [i for i, b in enumerate(tiles.boxes)
+            if x0 <= b[0] + ox and y0 <= b[1] + oy and b[2] + ox <= x1 and b[3] + oy <= y1]  # fmt: skip
+    if len(keep) == tiles.count:
+        return tiles
+    return dataclasses.replace(
+        tiles, boxes=tuple(tiles.boxes[i] for i in keep), tile=tiles.tile[keep], angles_deg=tiles.angles_deg[keep],
+        light_distance_m=tiles.light_distance_m[keep], angle_cov_deg2=tiles.angle_cov_deg2[keep],
+        direction_cov=tiles.direction_cov[keep],
+    )  # fmt: skip
+
+
 def _empty() -> TileGeometry:
     z = np.zeros((0, 4))
     return TileGeometry((0, 0, 0, 0), (), np.zeros(0, dtype=np.int64), z, np.zeros(0), np.zeros((0, 4, 4)),
@@ -177,3 +248,16 @@ def _degrees(v: FloatArray) -> tuple[float, float]:
     s = math.hypot(float(v[0]), float(v[1]))
     theta = math.degrees(math.atan2(s, float(v[2])))
     return theta, (0.0 if s < 1e-12 else math.degrees(math.atan2(float(v[1]), float(v[0]))))
+
+
+def _unit_rows(v: FloatArray) -> FloatArray:
+    out: FloatArray = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    return out
+
+
+def _degrees_rows(v: FloatArray) -> FloatArray:
+    """Zenith and azimuth (N, 2) in deg of unit vectors (N, 3), as ``_degrees`` of each."""
+    s = np.hypot(v[:, 0], v[:, 1])
+    theta = np.degrees(np.arctan2(s, v[:, 2]))
+    phi = np.where(s < 1e-12, 0.0, np.degrees(np.arctan2(v[:, 1], v[:, 0])))
+    return np.stack([theta, phi], axis=-1)

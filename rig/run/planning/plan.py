@@ -21,7 +21,7 @@ calibrated joints in alignment.py; ``Plan``, ``move_time_s`` and the rest are im
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -35,6 +35,7 @@ from rig.run.planning.moves import FIXED_JOINT_TOL_DEG, _axis_map, _Moves, move_
 from rig.run.planning.order import FloatArray, order_path, step_times
 from rig.run.planning.paths import gap_of, safe_sequence
 from rig.run.planning.result import Directions, Plan, PlannedPoint, SkippedPoint, TimeEstimate, format_duration
+from rig.run.planning.scans import ScanRunTime, ScanTiming, scan_runs
 
 __all__ = [
     "Plan",
@@ -73,6 +74,7 @@ def plan_sweep(
     branch: Branch = "camera_cw",
     alignment: Alignment | None = None,
     on_stage: Callable[[str], None] | None = None,
+    scan: ScanTiming | None = None,
 ) -> Plan:
     """Plan rows (N, 4) of BRDF angles in degrees on a rig: reachability, order, and time estimate in seconds.
 
@@ -86,7 +88,8 @@ def plan_sweep(
     (a geometry calibration's) corrects each reachable point's joints so the real rig measures the wanted
     directions (``rig.instrument.alignment.aligned_inverse``); a point it cannot reach within 0.01 deg is
     skipped as ``calibrated_miss``. ``on_stage`` is told the name of each of the ``PLAN_STAGES`` as it begins
-    (a progress bar for a large plan).
+    (a progress bar for a large plan). ``scan`` (continuous motion) times the runs a scan sweeps
+    (``rig.run.planning.scans``) at their speed instead of stop by stop.
     """
     stage = on_stage or (lambda _name: None)
     rows = _checked_rows(directions_deg, settle_s, exposure_s_per_point, overhead_s_per_point, reference_s,
@@ -124,15 +127,23 @@ def plan_sweep(
     if order:  # the same walk (legs included) in the sweep's own order
         kept_g, via_g = safe_sequence(moves.paths, moves.start, xg_all)
         unordered = float(_walk_times(moves, xg_all[kept_g], _kept_via(kept_g, via_g))[1].sum())
-    n = len(points)
+    if scan is not None:
+        scan = replace(scan, stop_point_s=settle_s + exposure_s_per_point + overhead_s_per_point)
+    runs = _scan_runs(moves, by_name, points, x, set(refs) if r_row is not None else set(), scan)
+    swept = [p for r in runs for p in r.swept]
+    n = len(points) - len(swept)  # measured at rest
     estimate = TimeEstimate(
-        motion_s=float(sum(steps)),
+        motion_s=float(sum(steps)) - float(sum(steps[p] for p in swept)),
         settle_s=n * settle_s,
         exposure_s=n * exposure_s_per_point,
         reference_s=float(ref_total),
         overhead_s=n * overhead_s_per_point,
         reference_captures=len(refs),
+        scan_s=sum(r.time_s for r in runs),
+        scanned=len(swept),
+        scan_speeds_deg_s=(min(r.speed_deg_s for r in runs), max(r.speed_deg_s for r in runs)) if runs else None,
     )
+    n = len(points)
     n_moves = n + (2 * len(refs) - (1 if refs and refs[-1] == n else 0) if r_row is not None else 0)
     return Plan(points, skipped, estimate, start, refs, reference_joints, unordered, len(via) + ref_split, n_moves,
                 moves.paths)  # fmt: skip
@@ -324,6 +335,22 @@ def _walk_times(moves: _Moves, x: FloatArray, via: dict[int, list[FloatArray]]) 
     for pos, legs in via.items():
         steps[pos] = moves.leg_time(path[pos], path[pos + 1], [*legs, path[pos + 1]])
     return path, steps
+
+
+def _scan_runs(moves: _Moves, by_name: dict[str, Axis], points: Sequence[PlannedPoint], x: FloatArray,
+               slots: set[int], scan: ScanTiming | None) -> tuple[ScanRunTime, ...]:  # fmt: skip
+    """The runs a continuous run sweeps (none in stop and go), timed under the axes' limits; only where the straight
+    sweep keeps the arms apart, as the runner scans."""
+    if scan is None:
+        return ()
+
+    def straight(a: int, b: int) -> bool:
+        legs = moves.paths.legs(x[a], x[b])
+        return legs is not None and len(legs) == 1
+
+    tops = {n: by_name[n].max_speed_deg_s for n in moves.moving}
+    accels = {n: by_name[n].max_accel_deg_s2 for n in moves.moving}
+    return scan_runs(points, slots, frozenset(moves.moving), tops, accels, scan, straight)
 
 
 def _reference_positions(n: int, every: int) -> tuple[int, ...]:

@@ -54,11 +54,17 @@ class TimeEstimate:
     reference_s: float
     overhead_s: float
     reference_captures: int = 0
+    #: Continuous motion: the scan runs' seconds (each from its first point, measured at rest, to rest at its last),
+    #: the points they sweep (their moves, settling, exposures and overhead are in it, not in the other causes),
+    #: and the slowest and fastest run's speed in deg/s.
+    scan_s: float = 0.0
+    scanned: int = 0
+    scan_speeds_deg_s: tuple[float, float] | None = None
 
     @property
     def total_s(self) -> float:
         """The whole run in seconds."""
-        return self.motion_s + self.settle_s + self.exposure_s + self.reference_s + self.overhead_s
+        return self.motion_s + self.settle_s + self.exposure_s + self.reference_s + self.overhead_s + self.scan_s
 
 
 def format_duration(seconds: float) -> str:
@@ -130,6 +136,10 @@ class Plan:
         ]
         if self.motion_as_generated_s is not None:
             parts[0] = ("motion", e.motion_s, f" (ordered; {format_duration(self.motion_as_generated_s)} as generated)")
+        if e.scanned and e.scan_speeds_deg_s is not None:
+            lo, hi = e.scan_speeds_deg_s
+            speeds = f"{lo:.3g} deg/s" if round(lo, 2) == round(hi, 2) else f"{lo:.3g}-{hi:.3g} deg/s"
+            parts.append(("scans", e.scan_s, f" ({e.scanned} points measured moving, at {speeds})"))
         lines.extend(f"  {name:<11}{format_duration(value):>14}{note}" for name, value, note in parts)
         return "\n".join(lines)
 

@@ -16,6 +16,7 @@ from model.fit.design import (
     error_weight,
     expected_error,
     fisher,
+    pooled,
     sensitivities,
 )
 from model.fit.samples import FitError, Samples
@@ -140,3 +141,22 @@ def test_the_scale_free_error_ignores_a_common_factor_per_channel_but_not_a_shap
     scaled = CookTorrance(rho_d=(0.55, 0.12, 0.08), alpha=0.08, distribution="ggx", fresnel="dielectric", eta=1.5)
     assert brdf_error(Lambert(rho_d=(0.33, 0.2, 0.1)), Lambert(rho_d=(0.3, 0.25, 0.1)), p, scale_free=True) < 1e-12
     assert brdf_error(scaled, PLASTIC, p, scale_free=True) > 1e-3  # a diffuse change is not a scale
+
+
+def test_pooled_readings_carry_each_capture_s_information_and_pick_as_all_its_readings_would() -> None:
+    rng = np.random.default_rng(4)
+    g = rng.normal(size=(12, 3, 2))  # 12 readings of 3 channels, 2 parameters
+    sigma = rng.uniform(0.5, 2.0, size=(12, 3))
+    owner = np.array([0, 0, 0, 0, 1, 2, 2, 2, 2, 2, 2, 3])
+    g_pose, s_pose = pooled(g, sigma, owner, 4)
+    assert g_pose.shape == (4, 2, 2) and np.all(s_pose == 1.0)
+    for m in range(4):
+        mine = owner == m
+        assert fisher(g_pose[m : m + 1], s_pose[m : m + 1]) == pytest.approx(fisher(g[mine], sigma[mine]))
+    # A capture of many readings outweighs one of a single reading of the same kind: its information is the sum.
+    cov = covariance(np.zeros((2, 2)))
+    a = np.eye(2)
+    picked = choose_batch(cov, g_pose, s_pose, a, 1).indices
+    one_by_one = [expected_error(a, np.linalg.inv(np.linalg.inv(cov) + fisher(g[owner == m], sigma[owner == m])))
+                  for m in range(4)]  # fmt: skip
+    assert picked[0] == int(np.argmin(one_by_one))

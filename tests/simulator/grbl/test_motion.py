@@ -4,9 +4,11 @@ coordinated moves, the planner, homing, hard and soft limits, holds, resets, jog
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
-from simulator.grbl.server import open_virtual_grbl
+from rig.instrument.clock import ManualClock
+from simulator.grbl.server import GrblPtyServer, open_virtual_grbl
 from tests.simulator.grbl.grbl_client import BANNER, Client
 
 
@@ -65,6 +67,26 @@ def test_positions_are_quantised_to_steps(grbl, clock):
     client.send("G0 X1.2")
     client.run_until(lambda r: r.startswith("<Idle"))
     assert client.mpos()[0] == 1.333
+
+
+def test_the_load_glides_between_the_whole_steps_the_report_counts(grbl: tuple[Client, GrblPtyServer],
+                                                                   clock: ManualClock) -> None:
+    """During a G1 the axis moves at the commanded feed between polls of the clock, though the report jumps by steps."""
+    client, sim = grbl
+    client.send("$100=3")  # a third of a unit per step: a short look sees no step go by
+    client.send("G1 X4 F60")  # 1 unit/s, cruising after a 0.1 s ramp (10 units/s^2) that falls 0.05 units behind
+    clock.advance(1.0)
+    x = client.mpos()[0]
+    assert client.state() == "Run" and x * 3 == pytest.approx(round(x * 3))  # whole steps in the report
+    glide = []
+    for _ in range(5):
+        glide.append(sim.controller.physical_position["X"])
+        clock.advance(0.002)
+    assert client.mpos()[0] == x  # no step reported within the look
+    assert glide[0] == pytest.approx(0.95, abs=1e-9)  # 1 s at 1 unit/s less the ramp
+    assert list(np.diff(glide)) == pytest.approx([0.002] * 4)  # the feed, 60 units/min, at every instant
+    client.run_until(lambda r: r.startswith("<Idle"))
+    assert client.mpos()[0] == sim.controller.physical_position["X"] == 4.0  # at rest on its whole step
 
 
 def test_status_fields_buffer_work_position_and_inches(grbl):
