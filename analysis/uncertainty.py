@@ -1,7 +1,9 @@
 """How honest the errors are: the angular share of the error budget, and z-scores against the fit and the truth.
 
 For each sample (and channel) the effective error is the photometric one plus the angular share
-(``model.fit.angular``); z = (measured - predicted) / effective error. If the errors are right, the z of
+(``model.fit.angular``); z = (measured - predicted) / effective error, the prediction being the model's mean
+over the sample's footprint where it has a direction covariance (``model.fit.footprint``: what a tile or a
+blurred frame reads, and what the fit predicts). If the errors are right, the z of
 independent samples are standard normal: 68.3 %, 95.4 % and 99.7 % of them within 1, 2 and 3. Against the
 fitted model the z measure how well the model and the errors agree; against the truth (a simulated run's
 material) they measure whether the error bars are honest. Lower-bound (saturated) samples are left out.
@@ -18,6 +20,7 @@ import numpy.typing as npt
 
 from analysis.result import Analysis, Reference
 from model.base import BRDF
+from model.fit.footprint import footprint_average
 
 FloatArray = npt.NDArray[np.float64]
 NORMAL = {1: 0.6827, 2: 0.9545, 3: 0.9973}
@@ -43,10 +46,10 @@ class ZSummary:
 
 
 def z_scores(a: Analysis, brdf: BRDF, photometric_se: FloatArray | None = None) -> ZSummary:
-    """z of every usable sample against ``brdf`` with the effective errors (photometric ``photometric_se`` if
-    given, else the samples', plus the angular share)."""
+    """z of every usable sample against ``brdf`` (its footprint mean) with the effective errors (photometric
+    ``photometric_se`` if given, else the samples', plus the angular share)."""
     s = a.samples
-    pred = np.asarray(brdf.eval(s.wi, s.wo), dtype=np.float64).reshape(s.n, -1)
+    pred = footprint_average(brdf, s.wi, s.wo, s.direction_cov)
     pred = np.broadcast_to(pred, s.value.shape) if pred.shape[1] == 1 else pred
     se = a.effective_std_error() if photometric_se is None else np.sqrt(
         np.square(photometric_se) + (a.angular_variance if a.angular_variance is not None else 0.0))

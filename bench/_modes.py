@@ -2,8 +2,10 @@
 time, the score against the truth and the honesty rule.
 
 Each bench runs sweep_tradeoff's materials on the simulated rig in stop-and-go (the anchor) and in another mode,
-cuts the other run in time order at the anchor's rig time, fits what is left with effective errors and scores it
-against the true material; ``honest`` judges the fractions of readings within 1/2/3 standard errors of the truth.
+cuts the other run in time order at the anchor's rig time, fits what is left with effective errors (each row
+predicted as its model's mean over its footprint, ``model.fit.footprint``) and scores it against the true material;
+``honest`` judges the fractions of readings within 1/2/3 standard errors of the truth's mean over each reading's
+footprint (a tile's spread, a scan's blur): what the rig measures.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import numpy as np
 from analysis.batch.tradeoff import REFERENCE_SNR, Material
 from model.fit.angular import angular_variance, fit_with_angular
 from model.fit.design import ErrorPairs, brdf_error
+from model.fit.footprint import footprint_average
 from model.fit.samples import Samples
 from rig.run.config.files import RigConfig, material_from, parse, rig_config
 from rig.run.config.schema import RigFile
@@ -73,7 +76,8 @@ def within(z: np.ndarray) -> list[float]:
 
 
 def score(rig: RigConfig, material: Material, rows: list[dict[str, Any]], pairs: ErrorPairs) -> dict[str, Any]:
-    """Fit the rows with effective errors, score against the truth; the readings' z against the truth.
+    """Fit the rows with effective errors, score against the truth; the readings' z against the truth's mean over
+    each reading's footprint.
 
     Keys: ``error`` and ``shape`` (relative BRDF errors, ``model.fit.design.brdf_error``), ``within_readings`` and
     ``within_footprint`` (fractions within 1/2/3 SE with the readings' errors alone and with the directions' angular
@@ -85,7 +89,7 @@ def score(rig: RigConfig, material: Material, rows: list[dict[str, Any]], pairs:
         res, _ = fit_with_angular(material.spec, samples)
     truth = material_from(rig)
     exact = Samples.from_table_rows(rows, errors="readings")
-    pred = np.asarray(truth.eval(samples.wi, samples.wo), dtype=np.float64).reshape(samples.n, -1)
+    pred = footprint_average(truth, exact.wi, exact.wo, exact.direction_cov)
     footprint = angular_variance(truth, exact)
     keep = ~samples.lower_bound
     z_read = ((samples.value - pred) / exact.std_error)[keep].reshape(-1)

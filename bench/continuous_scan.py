@@ -20,7 +20,8 @@ simulated Dynamixel rig measures, end to end (servos on the pty, Mitsuba camera,
 
 Rig time, equal rig time, fits, scores and the honesty rule are bench/image_mode's (``bench._modes``): each run is
 cut in time order at the anchor's rig time and the points measured by then are fitted with effective errors and
-scored against the truth. Within 1/2/3 SE: with the readings' errors alone, and with the directions' angular
+scored against the truth. Within 1/2/3 SE (of the truth's mean over each reading's footprint and blur,
+``model.fit.footprint``): with the readings' errors alone, and with the directions' angular
 variance at the true material added (ROI footprint and, for a scanned point, its motion blur). Scanned: points
 whose journal record has a ``scan`` key (the rest were measured at rest: every run's first point, and any point a
 scan fell back on). ScanTooFast: the warnings a run raised (at most one per scan run) and the largest blur named.

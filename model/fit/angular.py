@@ -8,7 +8,15 @@ reading's value then varies by the model's gradient along those components, so i
 
 evaluated at the fitted model (central differences). On a steep lobe's flank the angular term dominates
 and the point counts for what it is; on a flat diffuse sample it vanishes. The fit is repeated with the
-effective errors until they settle (``effective_samples``), since g depends on the fit.
+effective errors until they settle, since g depends on the fit.
+
+The same covariance also holds a tile's or a blurred frame's footprint, which the reading averages over:
+``fit_with_angular`` predicts such rows as the model's footprint mean (second order and beyond: the
+curvature of a narrow lobe, model/fit/footprint.py) rather than its value at the centre, unless told not to.
+It keeps the first-order variance beside the mean: the covariance also holds the pose's and the
+calibration's errors, random offsets of the directions that a mean does not capture, and the table does
+not say which share is which. For a footprint's share that variance is conservative (the mean has
+already absorbed it): readings on a lobe's flanks are weighted less than they could be, never biased.
 """
 
 from __future__ import annotations
@@ -75,22 +83,24 @@ def angular_share(photometric_se: Array, variance: Array) -> Array:
 
 def fit_with_angular(
     spec: FitSpec, samples: Samples, loss: str = "l2", *, starts: int = 4, seed: int = 0, iterations: int = 4,
-    tol: float = 0.01,
+    tol: float = 0.01, footprint: bool = True,
 ) -> tuple[FitResult, Array]:
     """Fit ``spec`` with effective errors (photometric plus angular, see the module), iterated to a fixed point.
 
     Returns the last fit and each sample's angular variance (N, C) in (1/sr)^2 at it; without
     ``direction_cov`` it is one ordinary fit and zeros. Stops when no error moves by more than ``tol``
-    (relative) or after ``iterations`` fits.
+    (relative) or after ``iterations`` fits. ``footprint``: predict rows with a covariance as the model's
+    mean over it (model/fit/footprint.py; False: at their centre, as before the mean existed).
     """
-    result = fit(spec, samples, loss, None, starts=starts, seed=seed)
+    average = footprint and samples.direction_cov.size > 0
+    result = fit(spec, samples, loss, None, starts=starts, seed=seed, footprint=average)
     if samples.direction_cov.size == 0:
         return result, np.zeros_like(samples.value)
     photometric = samples.std_error
     variance = angular_variance(result.model, samples)
     for _ in range(iterations - 1):
         current = with_angular(samples, photometric, variance)
-        result = fit(spec, current, loss, None, starts=starts, seed=seed)
+        result = fit(spec, current, loss, None, starts=starts, seed=seed, footprint=average)
         new = angular_variance(result.model, samples)
         old_se, new_se = np.sqrt(photometric**2 + variance), np.sqrt(photometric**2 + new)
         variance = new

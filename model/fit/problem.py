@@ -34,6 +34,7 @@ import numpy as np
 import numpy.typing as npt
 
 from model.base import Model, Pair
+from model.fit.footprint import MAX_AXES, SigmaPoints, sigma_points
 from model.fit.samples import Samples
 from model.fit.spec import FitSpec
 from model.fit.tall import solve_tall
@@ -56,22 +57,41 @@ TALL_RESIDUALS = 300_000
 
 
 class Rows:
-    """Fixed sample rows with their geometry computed once (a Pair, whose properties cache) and the hinge mask."""
+    """Fixed sample rows with their geometry computed once (a Pair, whose properties cache) and the hinge mask.
 
-    def __init__(self, s: Samples) -> None:
+    ``footprint``: rows with a direction covariance are predicted as the model's mean over their footprint
+    (model/fit/footprint.py: the side sigma points get a Pair of their own); the others at their centre.
+    """
+
+    def __init__(self, s: Samples, footprint: bool = False) -> None:
         self.n, self.c = s.n, s.channels
         self.pair = Pair(s.wi, s.wo)
         self.hinge = s.lower_bound if s.lower_bound.any() else None
+        self.sigma: SigmaPoints | None = None
+        self.sigma_pair: Pair | None = None
+        if footprint and s.direction_cov.size:
+            sp = sigma_points(s.wi, s.wo, s.direction_cov)
+            if sp.count:
+                self.sigma, self.sigma_pair = sp, Pair(sp.wi.reshape(-1, 3), sp.wo.reshape(-1, 3))
 
     def predict(self, spec: FitSpec, x_native: Array, *, validate: bool = False) -> Array:
         """Model values (N, C) in 1/sr at the rows (all above the horizon) for native parameters x."""
         m = spec.build(spec.values(x_native, self.c), validate=validate)
-        if self.n >= COMPILED_ROWS and type(m).eval is not Model.eval:
-            f = np.asarray(m.eval(self.pair.wi, self.pair.wo), dtype=np.float64).reshape(self.n, -1)
-        else:
-            with np.errstate(all="ignore"):
-                f = np.asarray(m._eval(self.pair), dtype=np.float64)
-        return np.broadcast_to(f, (self.n, self.c))
+        f = np.broadcast_to(_values(m, self.pair, self.n), (self.n, self.c))
+        if self.sigma is None or self.sigma_pair is None:
+            return f
+        k = self.sigma.count * 2 * MAX_AXES
+        points = np.broadcast_to(_values(m, self.sigma_pair, k), (k, self.c))
+        return self.sigma.combine(f, points)
+
+
+def _values(m: Model, pair: Pair, n: int) -> Array:
+    """The model's values (n, C or 1) at a pair's rows: its compiled path on large sets where it has one."""
+    if n >= COMPILED_ROWS and type(m).eval is not Model.eval:
+        return np.asarray(m.eval(pair.wi, pair.wo), dtype=np.float64).reshape(n, -1)
+    with np.errstate(all="ignore"):
+        out = np.asarray(m._eval(pair), dtype=np.float64)
+    return out
 
 
 def transform(loss: str, cos_i: Array) -> tuple[Callable[[Array], Array], bool]:
@@ -118,9 +138,11 @@ def jacobian(
 class Problem:
     """The objective of one fit over a set of sample rows, in the optimiser's coordinates u."""
 
-    def __init__(self, spec: FitSpec, s: Samples, loss: str, weighted: bool, is_log: Array) -> None:
+    def __init__(
+        self, spec: FitSpec, s: Samples, loss: str, weighted: bool, is_log: Array, footprint: bool = False
+    ) -> None:
         self.spec, self.c, self.is_log = spec, s.channels, is_log
-        self.rows = Rows(s)
+        self.rows = Rows(s, footprint)
         cos_i, cos_o = s.wi[:, 2:3], s.wo[:, 2:3]
         self.g, curved = transform(loss, cos_i)
         s_noise = (self.g(s.value + s.std_error) - self.g(s.value - s.std_error)) / 2.0 if curved else s.std_error

@@ -97,7 +97,7 @@ def _bounds(ordinary: Samples, saturated: Samples, notes: list[str]) -> Samples 
         rel = np.nanmedian(np.where(ordinary.value != 0, ordinary.std_error / np.abs(ordinary.value), np.nan), axis=0)
     borrowed = np.fmax(rel * np.abs(b.value), np.median(ordinary.std_error, axis=0))
     se = np.where(np.isfinite(b.std_error) & (b.std_error > 0), b.std_error, borrowed)
-    return Samples(b.wi, b.wo, b.value, se, b.lower_bound, b.std_error_assumed, (), b.source)
+    return Samples(b.wi, b.wo, b.value, se, b.lower_bound, b.std_error_assumed, (), b.source, b.direction_cov)
 
 
 def _join(ordinary: Samples, bounds: Samples) -> Samples:
@@ -105,7 +105,9 @@ def _join(ordinary: Samples, bounds: Samples) -> Samples:
     wi, wo, value, se = (np.concatenate([getattr(ordinary, k), getattr(bounds, k)]) for k in
                          ("wi", "wo", "value", "std_error"))  # fmt: skip
     flags = np.concatenate([np.zeros(ordinary.n, dtype=bool), np.ones(bounds.n, dtype=bool)])
-    return Samples(wi, wo, value, se, flags, ordinary.std_error_assumed, (), ordinary.source)
+    both = ordinary.direction_cov.size and bounds.direction_cov.size
+    cov = np.concatenate([ordinary.direction_cov, bounds.direction_cov]) if both else np.zeros((0, 4, 4))
+    return Samples(wi, wo, value, se, flags, ordinary.std_error_assumed, (), ordinary.source, cov)
 
 
 def fit(
@@ -120,12 +122,15 @@ def fit(
     f_scale: float = 3.0,
     lower_bounds: str = "constrain",
     warn: bool = True,
+    footprint: bool = False,
 ) -> FitResult:
     """Fit spec's model to the samples (values in 1/sr); see the module docstring for losses and errors.
 
     ``starts``: the spec's initial guess plus starts - 1 random points inside the bounds (seeded); the
     lowest cost wins. ``lower_bounds``: "constrain" (default) or "exclude" the saturated samples. Warnings
-    are collected in the result and, with ``warn``, also issued as FitWarning.
+    are collected in the result and, with ``warn``, also issued as FitWarning. ``footprint``: rows with a
+    ``direction_cov`` are predicted as the model's mean over their footprint (model/fit/footprint.py), what
+    a tile or a blurred frame reads, instead of its value at their centre.
     """
     if loss not in LOSSES or robust not in ROBUST or starts < 1 or lower_bounds not in LOWER_BOUNDS:
         raise FitError(
@@ -150,8 +155,9 @@ def fit(
     # The ordinary samples come first in the rows, so the first n rows of any prediction are theirs.
     rows = _join(s, bounds) if constrain and bounds is not None else s
     best, agreeing, full = solve_staged(
-        lambda r: Problem(spec, r, loss, weighted, box.is_log), rows, tries, (box.lo, box.hi), robust, f_scale, rng
-    )
+        lambda r: Problem(spec, r, loss, weighted, box.is_log, footprint), rows, tries, (box.lo, box.hi), robust,
+        f_scale, rng,
+    )  # fmt: skip
     if not best.success:
         notes.append(f"the optimiser stopped without converging: {best.message}")
     ux: Array = best.x
@@ -168,7 +174,7 @@ def fit(
     _note_at_bounds(ux, x, box, labels, notes)
     bound_chi2 = 0.0
     if bounds is not None:
-        pred_b = pred[n:] if constrain else Rows(bounds).predict(spec, x)
+        pred_b = pred[n:] if constrain else Rows(bounds, footprint).predict(spec, x)
         bound_chi2 = _shortfall(bounds, pred_b, constrain, notes)
 
     if warn:
