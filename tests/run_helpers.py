@@ -137,3 +137,25 @@ def run_outcome(sim: SimulatedRig, rig: RigConfig, sweep: SweepConfig, plan: Any
         return exc
     finally:
         store.close()
+
+
+def run_recording_renders(rig: RigConfig, sweep: SweepConfig, out: Path) -> tuple[Any, list[tuple[float, float]]]:
+    """Run ``sweep`` on a simulated ``rig`` into ``out``: its outcome and (clock s, camera joint deg) of every render
+    (a moving frame renders once per sub-exposure, so these are where the arm truly stood while it was exposed)."""
+    from rig.run.session import make_plan, manifest, options_for
+    from simulator.from_config import rig_from, spec_from
+
+    plan = make_plan(rig, sweep)
+    store = RunStore.create(out, manifest(rig, sweep, plan, options_for(rig, sweep, False)))
+    renders: list[tuple[float, float]] = []
+    with rig_from(rig, spec=spec_from(rig)) as sim:
+        assert sim.camera is not None
+        inner = sim._radiance
+
+        def recorded(*args: Any, **kwargs: Any) -> Any:
+            renders.append((sim.clock.now(), float(sim.joints_now().as_dict()["camera"])))
+            return inner(*args, **kwargs)
+
+        sim._radiance = recorded  # type: ignore[method-assign]
+        outcome = run_outcome(sim, rig, sweep, plan, store, sim.camera)
+    return outcome, renders

@@ -16,10 +16,9 @@ from model.fit.samples import Samples
 from rig.run.config.files import GRBL_STEPS_PER_DEGREE, ConfigError, material_from, parse
 from rig.run.config.schema import SweepFile
 from rig.run.measuring.scan import ScanTooFast, Stamp, exposure_window, interpolate
-from rig.run.session import capture_settings, make_plan, manifest, options_for
+from rig.run.session import capture_settings
 from rig.run.storage.store import RunStore
-from simulator.from_config import rig_from, spec_from
-from tests.run_helpers import LAMBERT, in_plane_sweep, read_rows, run_outcome, sim_rig, truth_and_measured
+from tests.run_helpers import LAMBERT, in_plane_sweep, read_rows, run_recording_renders, sim_rig, truth_and_measured
 
 GLOSSY = {"model": "CookTorrance", "alpha": 0.15, "eta": [0.18, 0.42, 1.37], "k": [3.42, 2.35, 1.77]}
 #: Two scan runs: 10 -> 0 -> -10 and -50 -> -40 -> -30 (-20 is the light's own direction, unreachable).
@@ -70,20 +69,7 @@ def _run(tmp_path: Path, material: dict[str, Any], light_w_sr: float = 1.0, on: 
          **capture: Any) -> tuple[list[dict[str, Any]], Any, list[Any]]:  # fmt: skip
     """A continuous in-plane scan: its journal's points, the rig config, and (clock, camera joint) of every render."""
     rig = sim_rig(material, on=on, reference={"every": 0}, simulation={"light_intensity_w_sr": light_w_sr})
-    sweep = in_plane_sweep([20.0], THETA_O, **capture)
-    plan = make_plan(rig, sweep)
-    store = RunStore.create(tmp_path / "run", manifest(rig, sweep, plan, options_for(rig, sweep, False)))
-    renders: list[tuple[float, float]] = []
-    with rig_from(rig, spec=spec_from(rig)) as sim:
-        assert sim.camera is not None
-        inner = sim._radiance
-
-        def recorded(*args: Any, **kwargs: Any) -> Any:
-            renders.append((sim.clock.now(), float(sim.joints_now().as_dict()["camera"])))
-            return inner(*args, **kwargs)
-
-        sim._radiance = recorded  # type: ignore[method-assign]
-        outcome = run_outcome(sim, rig, sweep, plan, store, sim.camera)
+    outcome, renders = run_recording_renders(rig, in_plane_sweep([20.0], THETA_O, **capture), tmp_path / "run")
     assert not isinstance(outcome, Exception), outcome
     points = [r for r in RunStore.read(tmp_path / "run").records() if r["kind"] == "point"]
     return points, (rig, outcome), renders

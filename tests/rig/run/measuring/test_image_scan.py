@@ -15,10 +15,9 @@ from rig.instrument.links.dynamixel_table import X_SERIES
 from rig.run.config.files import material_from, parse
 from rig.run.config.schema import SweepFile
 from rig.run.measuring.tiles import ImageSettings, TileGeometry, tile_geometry
-from rig.run.session import capture_settings, make_plan, manifest, options_for
+from rig.run.session import capture_settings
 from rig.run.storage.store import RunStore
-from simulator.from_config import rig_from, spec_from
-from tests.run_helpers import LAMBERT, in_plane_sweep, read_rows, run_outcome, sim_rig, truth_and_measured
+from tests.run_helpers import LAMBERT, in_plane_sweep, read_rows, run_recording_renders, sim_rig, truth_and_measured
 
 #: Two scan runs, as in test_continuous_scan: 10 -> 0 -> -10 and -50 -> -40 -> -30 (-20 is the light's direction).
 THETA_O = [-50.0, -40.0, -30.0, -20.0, -10.0, 0.0, 10.0]
@@ -46,19 +45,7 @@ def _run(run: Path, material: dict[str, Any], theta_o: list[float], resolution: 
     """An image-mode continuous in-plane scan: its journal, the table, the rig and (clock, camera joint) per render."""
     rig = sim_rig(material, reference={"every": 0}, camera={"resolution": [resolution, resolution]})
     sweep = in_plane_sweep([20.0], theta_o, mode="image", tile_px=4, motion="continuous", scan_speed_deg_s=speed)
-    plan = make_plan(rig, sweep)
-    store = RunStore.create(run, manifest(rig, sweep, plan, options_for(rig, sweep, False)))
-    renders: list[tuple[float, float]] = []
-    with rig_from(rig, spec=spec_from(rig)) as sim:
-        assert sim.camera is not None
-        inner = sim._radiance
-
-        def recorded(*args: Any, **kwargs: Any) -> Any:
-            renders.append((sim.clock.now(), float(sim.joints_now().as_dict()["camera"])))
-            return inner(*args, **kwargs)
-
-        sim._radiance = recorded  # type: ignore[method-assign]
-        outcome = run_outcome(sim, rig, sweep, plan, store, sim.camera)
+    outcome, renders = run_recording_renders(rig, sweep, run)
     assert not isinstance(outcome, Exception), outcome
     return RunStore.read(run).records(), outcome, rig, renders
 
